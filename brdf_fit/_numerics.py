@@ -1,0 +1,101 @@
+"""Guarded elementary functions and the library's named epsilons.
+
+Every function here keeps both the value *and* the gradient finite at its singular point with the
+"double where" idiom: the unsafe input is replaced by a harmless one *before* the singular function
+sees it, and the result is masked afterwards. A single ``jnp.where(mask, f(x), 0)`` is not enough:
+JAX still differentiates ``f`` on the masked lanes, and ``0 * inf`` gives NaN in the gradient.
+
+Epsilons (each named, each with its reason):
+
+``SQRT_EPS``
+    Below this the argument of :func:`safe_sqrt` is treated as 0 (value 0, gradient 0). 1e-30 is
+    far below any squared length or cosine that matters in float32 (smallest normal 1.2e-38), yet
+    large enough that ``1/sqrt(SQRT_EPS)`` = 1e15 stays finite in float32 gradients.
+``NORM_EPS``
+    Squared length below which a vector is considered to vanish in :func:`safe_normalize`. The half
+    vector ``wi + wo`` vanishes only when ``wi == -wo``, i.e. both directions on the horizon at
+    opposite azimuths; 1e-24 (length 1e-12) is far below any length produced by unit vectors with
+    at least one cosine above ``COS_EPS``.
+``COS_EPS``
+    Cosines at or below 0 are below the horizon. Exactly-zero cosines are excluded (the BRDF is 0
+    there by convention); no positive epsilon is added, so cos(theta) = 1e-7 is evaluated exactly.
+``ALPHA_MIN``
+    Microfacet roughness is clamped below at 1e-4 (the clamp of pbrt-v4's
+    ``TrowbridgeReitzDistribution`` and Mitsuba 3's ``MicrofacetDistribution``): below it
+    ``1/alpha^2`` exceeds 1e8 and D(n) overflows float32 products. The gradient is 0 below the
+    clamp.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+SQRT_EPS = 1e-30
+NORM_EPS = 1e-24
+COS_EPS = 0.0
+ALPHA_MIN = 1e-4
+
+
+def safe_sqrt(x, eps: float = SQRT_EPS):
+    """``sqrt(max(x, 0))`` with a finite (zero) gradient where ``x <= eps``."""
+    ok = x > eps
+    xs = jnp.where(ok, x, 1.0)
+    return jnp.where(ok, jnp.sqrt(xs), 0.0)
+
+
+def safe_rsqrt(x, eps: float = SQRT_EPS):
+    """``1/sqrt(x)`` where ``x > eps``; 0 elsewhere (value and gradient)."""
+    ok = x > eps
+    xs = jnp.where(ok, x, 1.0)
+    return jnp.where(ok, 1.0 / jnp.sqrt(xs), 0.0)
+
+
+def safe_div(a, b, eps: float = 0.0):
+    """``a / b`` where ``|b| > eps``; 0 elsewhere (value and gradient)."""
+    ok = jnp.abs(b) > eps
+    bs = jnp.where(ok, b, 1.0)
+    return jnp.where(ok, a / bs, 0.0)
+
+
+def safe_log(x, eps: float = 0.0):
+    """``log(x)`` where ``x > eps``; 0 elsewhere (value and gradient). Callers mask the result."""
+    ok = x > eps
+    xs = jnp.where(ok, x, 1.0)
+    return jnp.where(ok, jnp.log(xs), 0.0)
+
+
+def safe_pow(x, n):
+    """``x**n`` for ``x >= 0`` written as ``exp(n log x)``, 0 where ``x <= 0``.
+
+    ``d/dn`` is ``x^n log x``, finite everywhere (0 at x = 0), unlike ``jnp.power`` whose
+    derivative in n at x = 0 is ``0 * (-inf) = NaN``.
+    """
+    ok = x > 0
+    xs = jnp.where(ok, x, 1.0)
+    return jnp.where(ok, jnp.exp(n * jnp.log(xs)), 0.0)
+
+
+def dot3(ax, ay, az, bx, by, bz):
+    """Dot product written on components (kernels unpack vectors once, see DESIGN.md section 5)."""
+    return ax * bx + ay * by + az * bz
+
+
+def safe_normalize3(x, y, z, eps: float = NORM_EPS):
+    """Normalise (x, y, z); returns ``(x, y, z, ok)`` with a zero vector and ``ok = False``
+    where the squared length is ``<= eps`` (value and gradient finite)."""
+    l2 = x * x + y * y + z * z
+    ok = l2 > eps
+    inv = jnp.where(ok, 1.0 / jnp.sqrt(jnp.where(ok, l2, 1.0)), 0.0)
+    return x * inv, y * inv, z * inv, ok
+
+
+def safe_normalize(v, eps: float = NORM_EPS):
+    """Normalise ``v`` of shape (..., 3); the zero vector where it vanishes."""
+    x, y, z, _ = safe_normalize3(v[..., 0], v[..., 1], v[..., 2], eps)
+    return jnp.stack([x, y, z], axis=-1)
+
+
+def pow5(x):
+    """``x**5`` by two multiplications and a square (cheap, and smooth at 0)."""
+    x2 = x * x
+    return x2 * x2 * x

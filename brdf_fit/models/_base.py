@@ -1,0 +1,126 @@
+"""The BRDF interface and its conventions.
+
+Conventions (DESIGN.md section 2; each one is tested in ``tests/test_conventions.py``)
+-------------------------------------------------------------------------------------
+
+Frame
+    Local shading frame: ``z`` is the normal ``n``, ``x`` the tangent ``t`` (the anisotropy axis,
+    ``alpha_x`` is the width along it), ``y`` the bitangent ``b = n x t``.
+Directions
+    ``wi`` (toward the light) and ``wo`` (toward the viewer) are unit vectors pointing **away**
+    from the surface, arrays of shape ``(..., 3)``. Batch dimensions broadcast.
+``eval(wi, wo)``
+    The BRDF ``f_r`` in 1/sr, **without** the cosine factor. It is 0 when either direction is at
+    or below the horizon (``z <= 0``). Delta lobes (the mirror) cannot be evaluated and return 0.
+``pdf(wi, wo)``
+    Solid-angle density with which :meth:`sample` draws ``wi`` given ``wo``; 0 where ``sample``
+    never lands (below the horizon, or ``wo`` below the horizon). Its integral over the upper
+    hemisphere is ``1 - P(sampling fails)``.
+``sample(wo, uc, u)``
+    Takes uniforms, not PRNG keys: ``uc`` of shape ``(...)`` picks a lobe (single-lobe models may
+    use it for their own discrete choices), ``u`` of shape ``(..., 2)`` picks the direction.
+    Returns a :class:`BRDFSample` with ``wi``, ``pdf`` and ``weight = f cos(theta_i) / pdf``.
+    A failed sample has ``pdf = 0`` and ``weight = 0``, never NaN. Delta lobes return ``pdf = 1``
+    (a discrete probability, flagged by ``is_delta``) and ``weight`` = the reflectance.
+Roughness
+    Models store ``alpha`` (the width in D). The "perceptual roughness" ``r`` with ``alpha = r^2``
+    is the named conversion :func:`brdf_fit.roughness_to_alpha`, never applied silently.
+Channels
+    Colour parameters (albedo, F0, eta, k) may carry a trailing channel axis (RGB or wavelengths);
+    geometric parameters (alpha, exponents) are scalars. ``eval`` and ``weight`` then have shape
+    ``batch + (C,)``; ``pdf`` has shape ``batch``. Batches of *models* use ``jax.vmap``.
+dtype
+    float32 by default, float64 when ``jax_enable_x64`` is on; kernels hard-code no dtype.
+Units
+    Radians inside the library; degrees only at file and CLI boundaries, in names ending ``_deg``.
+"""
+
+from __future__ import annotations
+
+import abc
+from typing import ClassVar
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+
+class BRDFSample(eqx.Module):
+    """Result of :meth:`AbstractBRDF.sample`: direction, its pdf, and ``f cos / pdf``."""
+
+    wi: jax.Array
+    pdf: jax.Array
+    weight: jax.Array
+
+
+def n_channels(tree) -> int | None:
+    """Length of the trailing channel axis carried by the parameters of ``tree`` (None if all
+    parameters are scalars). Static under ``jit`` and ``vmap``."""
+    sizes = {int(jnp.shape(x)[-1]) for x in jax.tree_util.tree_leaves(tree) if jnp.ndim(x) > 0}
+    if not sizes:
+        return None
+    sizes.discard(1)
+    if len(sizes) > 1:
+        raise ValueError(f"parameters carry inconsistent channel counts {sorted(sizes)}")
+    return sizes.pop() if sizes else 1
+
+
+def expand_channels(x, channels: int | None):
+    """Append a channel axis of size 1 to a per-direction quantity when the model has channels."""
+    return x if channels is None else x[..., None]
+
+
+class AbstractBRDF(eqx.Module):
+    """A BRDF: evaluate, sample and report the sampling density (see the module docstring for the
+    conventions, which every subclass follows). Subclasses are final; compose, don't inherit."""
+
+    is_delta: ClassVar[bool] = False
+
+    @abc.abstractmethod
+    def eval(self, wi, wo):
+        """``f_r(wi, wo)`` in 1/sr, without the cosine; shape ``batch`` or ``batch + (C,)``."""
+
+    @abc.abstractmethod
+    def pdf(self, wi, wo):
+        """Solid-angle density of :meth:`sample` drawing ``wi`` given ``wo``; shape ``batch``."""
+
+    @abc.abstractmethod
+    def sample(self, wo, uc, u) -> BRDFSample:
+        """Draw ``wi`` given ``wo`` from uniforms ``uc`` (...) and ``u`` (..., 2)."""
+
+    def channels(self) -> int | None:
+        """Channel count of the outputs (None: scalar outputs)."""
+        return n_channels(self)
+
+    def selection_hint(self):
+        """A non-negative scalar proportional to how much this lobe reflects; mixtures pick lobes
+        with probability proportional to it. Default 1."""
+        return jnp.asarray(1.0)
+
+    def eval_cos(self, wi, wo):
+        """``f_r(wi, wo) max(0, cos theta_i)``, the integrand of the directional albedo."""
+        c = jnp.maximum(wi[..., 2], 0.0)
+        return self.eval(wi, wo) * expand_channels(c, self.channels())
+
+
+def _sample_weight(model: AbstractBRDF, wi, wo, pdf):
+    """``f cos / pdf`` with the failed-sample convention (0 where ``pdf = 0``)."""
+    ok = pdf > 0
+    f = model.eval_cos(wi, wo)
+    ch = model.channels()
+    okc = expand_channels(ok, ch)
+    pdfc = expand_channels(jnp.where(ok, pdf, 1.0), ch)
+    return jnp.where(okc, f / pdfc, 0.0)
+
+
+def astype(model, dtype):
+    """Copy of ``model`` with every floating-point parameter cast to ``dtype``."""
+
+    def cast(x):
+        if eqx.is_array(x) and jnp.issubdtype(x.dtype, jnp.floating):
+            return x.astype(dtype)
+        if isinstance(x, float):
+            return jnp.asarray(x, dtype=dtype)
+        return x
+
+    return jax.tree_util.tree_map(cast, model)

@@ -1,0 +1,121 @@
+"""The microfacet reflection model, composed from a distribution, a masking term and a Fresnel term.
+
+    f(wi, wo) = F(wo.h) D(h) G2(wi, wo, h) / (4 (n.wi)(n.wo)),      h = normalize(wi + wo)
+
+(Torrance & Sparrow 1967; Cook & Torrance 1982; in this general form Walter et al. 2007, eq. 20).
+"Cook-Torrance", "Torrance-Sparrow", "GGX-Smith" are registry entries that configure this one
+class, never subclasses. Reciprocal whenever D, G2 and F are symmetric in (wi, wo) (all ours are);
+single scattering only, so it loses energy as roughness grows and never gains it with F <= 1.
+
+Sampling (``sampling="auto"``): visible normals for Smith masking when the distribution has a
+visible-normal sampler (Heitz & d'Eon 2014; Dupuy & Benyoub 2023), the V-cavity visible-normal
+sampler for V-cavity masking (exact for it), otherwise ``D(m)(n.m)``. ``"ndf"`` forces the latter.
+Reflection pdfs, with the half-vector Jacobian ``1/(4 wo.h)`` (Walter et al. 2007, eq. 14):
+
+    Smith visible:    D(h) G1(wo) / (4 n.wo)                = D(h) / (2 (n.wo + P(wo)))
+    V-cavity visible: D(h) min(1/(4 n.wo), (n.h)/(2 wo.h))
+    NDF:              D(h) (n.h) / (4 wo.h)
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+
+from .._frame import join, split
+from .._numerics import safe_div, safe_normalize3
+from ..fresnel import SchlickFresnel
+from ..microfacet import (
+    GGX,
+    SmithHeightCorrelated,
+    VCavity,
+    reflect_about,
+    vcavity_sample_visible,
+)
+from ._base import AbstractBRDF, BRDFSample, _sample_weight, expand_channels
+
+_SAMPLING = ("auto", "visible", "ndf")
+
+
+def _sanitize(valid, x, y, z):
+    """Replace invalid lanes by the normal (0, 0, 1) before any singular function sees them."""
+    return jnp.where(valid, x, 0.0), jnp.where(valid, y, 0.0), jnp.where(valid, z, 1.0)
+
+
+class MicrofacetBRDF(AbstractBRDF):
+    """``F D G2 / (4 cos_i cos_o)`` with pluggable parts (see the module docstring)."""
+
+    distribution: object = GGX(0.5)
+    masking: object = SmithHeightCorrelated()
+    fresnel: object = SchlickFresnel(0.04)
+    sampling: str = eqx.field(static=True, default="auto")
+
+    def __check_init__(self):
+        if self.sampling not in _SAMPLING:
+            raise ValueError(f"sampling must be one of {_SAMPLING}, got {self.sampling!r}")
+        if self.sampling == "visible" and not (
+            isinstance(self.masking, VCavity) or self.distribution.supports_visible
+        ):
+            raise ValueError(
+                f"{type(self.distribution).__name__} has no visible-normal sampler; "
+                "use sampling='ndf' or 'auto'"
+            )
+
+    def _mode(self):
+        if self.sampling == "ndf":
+            return "ndf"
+        if isinstance(self.masking, VCavity):
+            return "vcavity"
+        return "visible" if self.distribution.supports_visible else "ndf"
+
+    def _geometry(self, wi, wo):
+        ix, iy, iz = split(wi)
+        ox, oy, oz = split(wo)
+        hx, hy, hz, hok = safe_normalize3(ix + ox, iy + oy, iz + oz)
+        valid = (iz > 0) & (oz > 0) & hok
+        ix, iy, iz = _sanitize(valid, ix, iy, iz)
+        ox, oy, oz = _sanitize(valid, ox, oy, oz)
+        hx, hy, hz = _sanitize(valid, hx, hy, hz)
+        d = ox * hx + oy * hy + oz * hz
+        return valid, (ix, iy, iz), (ox, oy, oz), (hx, hy, hz), d
+
+    def eval(self, wi, wo):
+        valid, (ix, iy, iz), (ox, oy, oz), (hx, hy, hz), d = self._geometry(wi, wo)
+        dist = self.distribution
+        DV = dist.D(hx, hy, hz) * self.masking.V(dist, ix, iy, iz, ox, oy, oz, hz, d)
+        ch = self.channels()
+        F = self.fresnel(expand_channels(d, ch))
+        return jnp.where(expand_channels(valid, ch), F * expand_channels(DV, ch), 0.0)
+
+    def pdf(self, wi, wo):
+        valid, _, (ox, oy, oz), (hx, hy, hz), d = self._geometry(wi, wo)
+        dist = self.distribution
+        D = dist.D(hx, hy, hz)
+        mode = self._mode()
+        if mode == "visible":
+            p = D / (2.0 * (oz + dist.P_exact(ox, oy, oz)))
+        elif mode == "vcavity":
+            p = D * jnp.minimum(0.25 / oz, safe_div(hz, 2.0 * d))
+        else:
+            p = D * safe_div(hz, 4.0 * d)
+        return jnp.where(valid, p, 0.0)
+
+    def sample(self, wo, uc, u):
+        ox, oy, oz = split(wo)
+        ok = oz > 0
+        ox, oy, oz = _sanitize(ok, ox, oy, oz)
+        u1, u2 = u[..., 0], u[..., 1]
+        dist = self.distribution
+        mode = self._mode()
+        if mode == "visible":
+            m = dist.sample_visible(ox, oy, oz, u1, u2)
+        elif mode == "vcavity":
+            m = vcavity_sample_visible(dist, ox, oy, oz, u1, u2, uc)
+        else:
+            m = dist.sample_normal(u1, u2)
+        wi = join(*reflect_about(ox, oy, oz, *m))
+        pdf = jnp.where(ok, self.pdf(wi, wo), 0.0)
+        return BRDFSample(wi=wi, pdf=pdf, weight=_sample_weight(self, wi, wo, pdf))
+
+    def selection_hint(self):
+        return self.fresnel.reflectance_hint()

@@ -1,0 +1,374 @@
+"""The model registry: explicit name -> entry (builder, parameters with defaults and constraints,
+literature reference, aliases). Scripts, the CLI and the contract tests use it as the stable
+handle::
+
+    from brdf_fit import registry
+    model = registry.get("ggx-conductor").build(alpha=0.2)
+
+Every parameter is flat and named; colour parameters may carry a trailing channel axis.
+"""
+
+from __future__ import annotations
+
+import difflib
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import jax.numpy as jnp
+import numpy as np
+
+from ._validate import ParameterError, check_param, concrete
+from .fresnel import ConductorFresnel, DielectricFresnel, SchlickFresnel
+from .microfacet import GGX, Beckmann, BlinnPhongNDF, SmithHeightCorrelated, SmithSeparable, VCavity
+from .models import Lambert, MicrofacetBRDF, Mirror, Mixture, Scaled
+from .models._base import AbstractBRDF
+
+__all__ = ["Param", "Entry", "get", "names", "entries", "register", "UnknownModelError"]
+
+
+class UnknownModelError(KeyError):
+    """No registry entry has this name or alias."""
+
+    def __str__(self):  # KeyError quotes its message; keep it readable
+        return str(self.args[0])
+
+
+@dataclass(frozen=True)
+class Param:
+    """A model parameter: default, valid interval, whether it may carry channels."""
+
+    name: str
+    default: Any
+    lo: float | None = None
+    hi: float | None = None
+    lo_open: bool = False
+    hi_open: bool = False
+    channels: bool = False
+    doc: str = ""
+
+    def default_value(self):
+        v = self.default() if callable(self.default) else self.default
+        return np.asarray(v, dtype=float)
+
+    def interval(self) -> str:
+        lo = "-inf" if self.lo is None else f"{self.lo:g}"
+        hi = "inf" if self.hi is None else f"{self.hi:g}"
+        lb = "(" if (self.lo_open or self.lo is None) else "["
+        rb = ")" if (self.hi_open or self.hi is None) else "]"
+        return f"{lb}{lo}, {hi}{rb}"
+
+    def validate(self, value, entry_name: str):
+        v = concrete(value)
+        if v is not None and v.dtype != object:
+            if v.ndim > 1 or (v.ndim == 1 and not self.channels):
+                what = "a scalar or a 1-D channel vector" if self.channels else "a scalar"
+                raise ParameterError(
+                    f"{entry_name}: parameter {self.name!r} must be {what}, got shape {v.shape}"
+                )
+        check_param(
+            self.name, value, self.lo, self.hi, self.lo_open, self.hi_open, owner=entry_name
+        )
+
+
+@dataclass(frozen=True)
+class Entry:
+    """A registered model: ``build(**params)`` returns an :class:`AbstractBRDF`."""
+
+    name: str
+    builder: Callable[..., AbstractBRDF]
+    params: tuple[Param, ...]
+    reference: str
+    description: str
+    aliases: tuple[str, ...] = ()
+    #: check name -> reason, for checks this model is not meant to pass (shown, never hidden)
+    expected_failures: dict[str, str] = field(default_factory=dict)
+    tags: tuple[str, ...] = ()
+
+    @property
+    def param_names(self) -> tuple[str, ...]:
+        return tuple(p.name for p in self.params)
+
+    def param(self, name: str) -> Param:
+        for p in self.params:
+            if p.name == name:
+                return p
+        raise ParameterError(
+            f"{self.name}: unknown parameter {name!r}; valid parameters: "
+            f"{', '.join(self.param_names) or '(none)'}"
+        )
+
+    def defaults(self) -> dict[str, np.ndarray]:
+        return {p.name: p.default_value() for p in self.params}
+
+    def build(self, **params) -> AbstractBRDF:
+        """Model with the given parameters; unspecified ones take their defaults. Concrete values
+        are validated (unknown name, wrong shape, out of range: :class:`ParameterError`)."""
+        for k in params:
+            self.param(k)  # raises with the list of valid names
+        values = {}
+        for p in self.params:
+            v = params[p.name] if p.name in params else p.default_value()
+            p.validate(v, self.name)
+            values[p.name] = jnp.asarray(v)
+        return self.builder(**values)
+
+    def to_dict(self) -> dict:
+        return {
+            "name": self.name,
+            "aliases": list(self.aliases),
+            "description": self.description,
+            "reference": self.reference,
+            "tags": list(self.tags),
+            "params": [
+                {
+                    "name": p.name,
+                    "default": p.default_value().tolist(),
+                    "interval": p.interval(),
+                    "channels": p.channels,
+                    "doc": p.doc,
+                }
+                for p in self.params
+            ],
+            "expected_failures": dict(self.expected_failures),
+        }
+
+
+_REGISTRY: dict[str, Entry] = {}
+_ALIASES: dict[str, str] = {}
+
+
+def register(entry: Entry) -> Entry:
+    for key in (entry.name, *entry.aliases):
+        if key in _REGISTRY or key in _ALIASES:
+            raise ValueError(f"registry name {key!r} is already taken")
+    _REGISTRY[entry.name] = entry
+    for a in entry.aliases:
+        _ALIASES[a] = entry.name
+    return entry
+
+
+def names() -> tuple[str, ...]:
+    return tuple(_REGISTRY)
+
+
+def entries() -> tuple[Entry, ...]:
+    return tuple(_REGISTRY.values())
+
+
+def get(name: str) -> Entry:
+    """The entry called ``name`` (or one of its aliases, case-insensitive)."""
+    key = name.strip().lower()
+    key = _ALIASES.get(key, key)
+    if key in _REGISTRY:
+        return _REGISTRY[key]
+    close = difflib.get_close_matches(key, list(_REGISTRY) + list(_ALIASES), n=3)
+    hint = f" Did you mean {', '.join(close)}?" if close else ""
+    raise UnknownModelError(
+        f"unknown model {name!r}.{hint} Valid models: {', '.join(sorted(_REGISTRY))}"
+    )
+
+
+# ----------------------------------------------------------------------------- parameters
+
+
+def _alpha(name="alpha", default=0.3, doc="GGX/Beckmann width alpha (not perceptual roughness)"):
+    return Param(name, default, lo=0.0, hi=1.0, lo_open=True, doc=doc)
+
+
+def _unit(name, default, doc, channels=True):
+    return Param(name, default, lo=0.0, hi=1.0, channels=channels, doc=doc)
+
+
+def _eta(default=1.5, doc="relative index of refraction eta_t/eta_i", channels=True):
+    return Param("eta", default, lo=0.0, lo_open=True, channels=channels, doc=doc)
+
+
+def _gold_eta():
+    from . import spectra
+
+    return spectra.rgb_nk("Au")[0]
+
+
+def _gold_k():
+    from . import spectra
+
+    return spectra.rgb_nk("Au")[1]
+
+
+_ETA_AU = Param("eta", _gold_eta, lo=0.0, lo_open=True, channels=True,
+                doc="real part of the complex IOR (default: gold, effective linear sRGB)")
+_K_AU = Param("k", _gold_k, lo=0.0, channels=True,
+              doc="extinction coefficient (default: gold, effective linear sRGB)")
+
+_WALTER = (
+    "B. Walter, S. Marschner, H. Li, K. Torrance, Microfacet models for refraction through rough "
+    "surfaces, EGSR 2007"
+)
+_HEITZ = "E. Heitz, Understanding the masking-shadowing function, JCGT 3(2) 2014"
+_TR = "T. S. Trowbridge, K. P. Reitz, JOSA 65(5) 1975"
+_SCHLICK = "C. Schlick, Computer Graphics Forum 13(3) 1994"
+
+
+def _mf(dist, masking, fresnel):
+    return MicrofacetBRDF(distribution=dist, masking=masking, fresnel=fresnel)
+
+
+register(Entry(
+    name="lambert",
+    builder=lambda rho: Lambert(rho=rho),
+    params=(_unit("rho", (0.8, 0.6, 0.4), "diffuse albedo"),),
+    reference="J. H. Lambert, Photometria, 1760",
+    description="ideal diffuse reflector rho/pi",
+    aliases=("diffuse",),
+))
+
+register(Entry(
+    name="mirror",
+    builder=lambda f0: Mirror(fresnel=SchlickFresnel(f0=f0)),
+    params=(_unit("f0", (1.0, 1.0, 1.0), "normal-incidence reflectance (Schlick)"),),
+    reference="law of reflection; Schlick 1994 for F",
+    description="smooth mirror: a delta lobe (eval/pdf are 0; sample returns the mirror direction)",
+    aliases=("specular", "delta-mirror"),
+    tags=("delta",),
+))
+
+register(Entry(
+    name="cook-torrance",
+    builder=lambda alpha, eta: _mf(Beckmann(alpha), VCavity(), DielectricFresnel(eta)),
+    params=(_alpha(doc="Beckmann RMS slope m"), _eta()),
+    reference=(
+        "R. L. Cook, K. E. Torrance, A reflectance model for computer graphics, ACM TOG 1(1) "
+        "1982 (modern normalisation: F D G/(4 cos_i cos_o), i.e. 1/4 of the literal 1982 "
+        "F D G/(pi cos_i cos_o) with an un-normalised D)"
+    ),
+    description="Beckmann D, V-cavity G, exact dielectric Fresnel",
+    aliases=("ct",),
+))
+
+register(Entry(
+    name="torrance-sparrow",
+    builder=lambda kd, ks, alpha, eta: Mixture(lobes=(
+        Lambert(rho=kd),
+        Scaled(lobe=_mf(Beckmann(alpha), VCavity(), DielectricFresnel(eta)), scale=ks),
+    )),
+    params=(
+        _unit("kd", (0.2, 0.2, 0.2), "diffuse albedo"),
+        _unit("ks", 0.8, "specular scale", channels=False),
+        _alpha(doc="Beckmann RMS slope (the Gaussian-angle D is the catalogue's variant)"),
+        _eta(),
+    ),
+    reference=(
+        "K. E. Torrance, E. M. Sparrow, Theory for off-specular reflection from roughened "
+        "surfaces, JOSA 57(9) 1967, with Beckmann D as in " + _WALTER
+    ),
+    description="kd Lambert + ks Beckmann/V-cavity/dielectric-Fresnel microfacet lobe",
+    aliases=("ts",),
+))
+
+register(Entry(
+    name="beckmann",
+    builder=lambda alpha, f0: _mf(Beckmann(alpha), SmithHeightCorrelated(), SchlickFresnel(f0)),
+    params=(_alpha(), _unit("f0", (0.04, 0.04, 0.04), "normal-incidence reflectance")),
+    reference=f"{_WALTER} (D eq. 25); {_HEITZ} (height-correlated G2 eq. 99); {_SCHLICK}",
+    description="Beckmann D, height-correlated Smith G (exact erf Lambda), Schlick F",
+))
+
+register(Entry(
+    name="beckmann-walter",
+    builder=lambda alpha, f0: _mf(
+        Beckmann(alpha, lambda_approx="walter"), SmithSeparable(), SchlickFresnel(f0)
+    ),
+    params=(_alpha(), _unit("f0", (0.04, 0.04, 0.04), "normal-incidence reflectance")),
+    reference=f"{_WALTER} (D eq. 25, rational G1 eq. 27, separable G eq. 23); {_SCHLICK}",
+    description="Beckmann D, separable Smith G with Walter's rational Lambda, Schlick F",
+))
+
+register(Entry(
+    name="ggx",
+    builder=lambda alpha, f0: _mf(GGX(alpha), SmithHeightCorrelated(), SchlickFresnel(f0)),
+    params=(_alpha(), _unit("f0", (0.04, 0.04, 0.04), "normal-incidence reflectance")),
+    reference=f"{_TR}; {_WALTER} (eq. 33); {_HEITZ} (eq. 99); {_SCHLICK}",
+    description="GGX D, height-correlated Smith G, Schlick F",
+    aliases=("trowbridge-reitz", "ggx-smith"),
+))
+
+register(Entry(
+    name="ggx-separable",
+    builder=lambda alpha, f0: _mf(GGX(alpha), SmithSeparable(), SchlickFresnel(f0)),
+    params=(_alpha(), _unit("f0", (0.04, 0.04, 0.04), "normal-incidence reflectance")),
+    reference=f"{_WALTER} (eqs. 23, 33, 34); {_SCHLICK}",
+    description="GGX D, separable (uncorrelated) Smith G, Schlick F",
+))
+
+register(Entry(
+    name="ggx-conductor",
+    builder=lambda alpha, eta, k: _mf(GGX(alpha), SmithHeightCorrelated(),
+                                      ConductorFresnel(eta, k)),
+    params=(_alpha(), _ETA_AU, _K_AU),
+    reference=f"{_WALTER}; {_HEITZ}; exact conductor Fresnel (Born & Wolf 1.5.2)",
+    description="GGX D, height-correlated Smith G, exact conductor Fresnel (default gold, RGB)",
+    aliases=("rough-conductor",),
+))
+
+register(Entry(
+    name="ggx-aniso",
+    builder=lambda alpha_x, alpha_y, f0: _mf(GGX(alpha_x, alpha_y), SmithHeightCorrelated(),
+                                             SchlickFresnel(f0)),
+    params=(_alpha("alpha_x", 0.1, "width along the tangent x"),
+            _alpha("alpha_y", 0.4, "width along the bitangent y"),
+            _unit("f0", (0.04, 0.04, 0.04), "normal-incidence reflectance")),
+    reference=f"{_HEITZ} (anisotropic D eq. 85, Lambda eq. 86); {_SCHLICK}",
+    description="anisotropic GGX, height-correlated Smith G, Schlick F",
+    tags=("anisotropic",),
+))
+
+register(Entry(
+    name="beckmann-aniso",
+    builder=lambda alpha_x, alpha_y, f0: _mf(Beckmann(alpha_x, alpha_y), SmithHeightCorrelated(),
+                                             SchlickFresnel(f0)),
+    params=(_alpha("alpha_x", 0.1, "width along the tangent x"),
+            _alpha("alpha_y", 0.4, "width along the bitangent y"),
+            _unit("f0", (0.04, 0.04, 0.04), "normal-incidence reflectance")),
+    reference=f"{_HEITZ} (anisotropic D eq. 84); {_SCHLICK}",
+    description="anisotropic Beckmann, height-correlated Smith G, Schlick F",
+    tags=("anisotropic",),
+))
+
+register(Entry(
+    name="ggx-conductor-aniso",
+    builder=lambda alpha_x, alpha_y, eta, k: _mf(GGX(alpha_x, alpha_y), SmithHeightCorrelated(),
+                                                 ConductorFresnel(eta, k)),
+    params=(_alpha("alpha_x", 0.1, "width along the tangent x"),
+            _alpha("alpha_y", 0.4, "width along the bitangent y"), _ETA_AU, _K_AU),
+    reference=f"{_HEITZ}; exact conductor Fresnel",
+    description="anisotropic GGX, height-correlated Smith G, exact conductor Fresnel (gold)",
+    tags=("anisotropic",),
+))
+
+register(Entry(
+    name="ggx-plastic",
+    builder=lambda rho_d, alpha, f0: Mixture(lobes=(
+        Lambert(rho=rho_d),
+        _mf(GGX(alpha), SmithHeightCorrelated(), SchlickFresnel(f0)),
+    )),
+    params=(_unit("rho_d", (0.5, 0.3, 0.2), "diffuse albedo"),
+            _alpha(default=0.2),
+            _unit("f0", 0.04, "specular normal-incidence reflectance", channels=False)),
+    reference=f"Lambert + GGX ({_WALTER}); one-sample lobe selection (Veach & Guibas 1995)",
+    description="Lambert diffuse + GGX specular (Schlick F), summed without coupling",
+    aliases=("plastic",),
+))
+
+register(Entry(
+    name="blinn-phong-microfacet",
+    builder=lambda exponent, f0: _mf(BlinnPhongNDF(exponent), SmithHeightCorrelated(),
+                                     SchlickFresnel(f0)),
+    params=(Param("exponent", 50.0, lo=0.0, doc="Blinn-Phong exponent of the NDF"),
+            _unit("f0", (0.04, 0.04, 0.04), "normal-incidence reflectance")),
+    reference=(
+        "J. F. Blinn, Models of light reflection for computer synthesized pictures, SIGGRAPH "
+        f"1977; normalised NDF and Beckmann-mapped Smith G: {_WALTER} (section 5.2)"
+    ),
+    description="Blinn-Phong NDF, Smith G at the equivalent Beckmann width, Schlick F",
+))
