@@ -1,0 +1,383 @@
+"""Tests of brdf_fit.chi2: correct samplers pass, broken ones (negative controls) fail.
+
+The samplers live here, written independently of the library: a cosine-weighted hemisphere, the
+uniform sphere, and a Phong (power-cosine) lobe about an axis tilted 60 degrees from the normal
+whose samples below the horizon fail (pdf 0). Every sampler is jitted once (module-level cache);
+``chi2_test`` pads its chunks to one shape, so each compiles once.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy import stats
+
+from brdf_fit import chi2
+from brdf_fit.quadrature import composite_gauss_legendre_hemisphere, integrate
+
+N = 100_000
+TILT = math.radians(60.0)
+EXPONENT = 20
+
+
+# --------------------------------------------------------------------------------------------
+# Reference samplers
+# --------------------------------------------------------------------------------------------
+
+
+def _from_local(cos_t, phi):
+    sin_t = jnp.sqrt(jnp.clip(1.0 - cos_t * cos_t, 0.0, None))
+    return jnp.stack([sin_t * jnp.cos(phi), sin_t * jnp.sin(phi), cos_t], axis=-1)
+
+
+@jax.jit
+def cosine_sample(u):
+    cos_t = jnp.sqrt(u[:, 0])
+    return _from_local(cos_t, 2.0 * jnp.pi * u[:, 1]), cos_t / jnp.pi
+
+
+@jax.jit
+def cosine_pdf(wi):
+    return jnp.where(wi[:, 2] > 0.0, wi[:, 2] / jnp.pi, 0.0)
+
+
+@jax.jit
+def cosine_pdf_scaled(wi):
+    return 1.1 * cosine_pdf(wi)
+
+
+@jax.jit
+def sphere_sample(u):
+    cos_t = 1.0 - 2.0 * u[:, 0]
+    return _from_local(cos_t, 2.0 * jnp.pi * u[:, 1]), jnp.full_like(cos_t, 0.25 / jnp.pi)
+
+
+@jax.jit
+def sphere_pdf(wi):
+    return jnp.full(wi.shape[:-1], 0.25 / jnp.pi, dtype=wi.dtype)
+
+
+def _lobe_frame(tilt):
+    axis = np.array([math.sin(tilt), 0.0, math.cos(tilt)])
+    t = np.array([math.cos(tilt), 0.0, -math.sin(tilt)])
+    b = np.cross(axis, t)
+    return jnp.asarray(t), jnp.asarray(b), jnp.asarray(axis)
+
+
+@functools.cache
+def phong(n_sample=EXPONENT, n_pdf=EXPONENT, phi_max=2.0 * math.pi, tilt=TILT):
+    """Power-cosine lobe about an axis tilted ``tilt`` from the normal; below-horizon samples fail.
+
+    The sampler draws ``cos = u1^(1/(n_sample + 1))``, ``phi = phi_max u2`` about the axis; the pdf
+    function is ``(n_pdf + 1)/(2 pi) cos^n_pdf`` above the horizon and 0 below. Correct when
+    ``n_sample == n_pdf`` and ``phi_max == 2 pi``.
+    """
+    t, b, axis = _lobe_frame(tilt)
+
+    def density(c):
+        return (n_pdf + 1) / (2.0 * jnp.pi) * jnp.clip(c, 0.0, None) ** n_pdf
+
+    @jax.jit
+    def sample(u):
+        cos_a = u[:, 0] ** (1.0 / (n_sample + 1))
+        loc = _from_local(cos_a, phi_max * u[:, 1])
+        wi = loc[:, :1] * t + loc[:, 1:2] * b + loc[:, 2:] * axis
+        return wi, jnp.where(wi[:, 2] > 0.0, density(cos_a), 0.0)
+
+    @jax.jit
+    def pdf(wi):
+        return jnp.where(wi[:, 2] > 0.0, density(wi @ axis), 0.0)
+
+    return sample, pdf
+
+
+def _critical(result):
+    """The statistic above which ``result`` fails at its Sidak threshold (from SciPy)."""
+    return stats.chi2.isf(result.threshold, result.dof)
+
+
+# --------------------------------------------------------------------------------------------
+# Distribution functions and pooling
+# --------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "stat, dof",
+    [(0.01, 1), (3.84, 1), (0.5, 2), (10.0, 3), (7.0, 12), (150.0, 99), (90.0, 99), (250.0, 199)],
+)
+def test_p_value_matches_scipy(stat, dof):
+    np.testing.assert_allclose(chi2.chi2_sf(stat, dof), stats.chi2.sf(stat, dof), rtol=1e-12)
+
+
+@pytest.mark.parametrize("stat, dof", [(400.0, 100), (2000.0, 1500), (1e-3, 40), (900.0, 30)])
+def test_p_value_matches_scipy_in_the_tails(stat, dof):
+    np.testing.assert_allclose(chi2.chi2_sf(stat, dof), stats.chi2.sf(stat, dof), rtol=1e-10)
+
+
+def test_p_value_edge_cases():
+    assert chi2.chi2_sf(0.0, 5) == 1.0
+    assert chi2.chi2_sf(math.inf, 5) == 0.0
+    assert math.isnan(chi2.chi2_sf(3.0, 0))
+
+
+def test_sidak_threshold():
+    assert chi2.sidak_threshold(0.01, 1) == pytest.approx(0.01, rel=1e-14)
+    for k in (2, 10, 1000):
+        t = chi2.sidak_threshold(0.01, k)
+        assert t == pytest.approx(1.0 - 0.99 ** (1.0 / k), rel=1e-10)
+        assert 1.0 - (1.0 - t) ** k == pytest.approx(0.01, rel=1e-12)
+    with pytest.raises(ValueError):
+        chi2.sidak_threshold(0.0, 3)
+
+
+def test_pooling_rule():
+    obs = np.array([50.0, 30.0, 2.0, 1.0, 0.0, 0.0])
+    exp = np.array([48.0, 33.0, 1.5, 2.0, 0.4, 0.0])
+    stat, dof, n_pooled = chi2.pooled_chi2_statistic(obs, exp)
+    # pooled bin: the three small cells (E = 3.9 < 5) absorb the smallest regular bin (33)
+    pool_o, pool_e = 2.0 + 1.0 + 0.0 + 30.0, 1.5 + 2.0 + 0.4 + 33.0
+    assert (dof, n_pooled) == (1, 4)
+    assert stat == pytest.approx((50 - 48) ** 2 / 48 + (pool_o - pool_e) ** 2 / pool_e, rel=1e-14)
+    # samples where the expectation is exactly zero make the statistic infinite
+    stat, _, _ = chi2.pooled_chi2_statistic(obs + np.array([0, 0, 0, 0, 0, 3.0]), exp)
+    assert stat == math.inf
+
+
+# --------------------------------------------------------------------------------------------
+# Correct samplers pass
+# --------------------------------------------------------------------------------------------
+
+
+def test_cosine_sampler_passes():
+    r = chi2.chi2_test(cosine_sample, cosine_pdf, n_samples=N)
+    assert r.passed, str(r) + "\n" + r.worst_cells()
+    assert (r.res_mu, r.res_phi) == (10, 20)
+    assert r.n_fail == 0 and r.expected_fail_fraction < 1e-12
+    assert r.observed.sum() == N
+    np.testing.assert_allclose(r.expected.sum(), N, rtol=1e-12)
+    assert r.expected[: r.res_mu // 2].max() == 0.0  # nothing expected below the horizon
+    assert r.pdf_mismatch_fraction == 0.0
+
+
+def test_uniform_sphere_passes():
+    r = chi2.chi2_test(sphere_sample, sphere_pdf, n_samples=N)
+    assert r.passed, str(r) + "\n" + r.worst_cells()
+    assert r.dof == r.res_mu * r.res_phi - 1  # every cell is its own bin
+    np.testing.assert_allclose(r.expected, N / r.expected.size, rtol=1e-12)
+
+
+def test_tilted_phong_with_failures_passes():
+    sample, pdf = phong()
+    r = chi2.chi2_test(sample, pdf, n_samples=N)
+    assert r.passed, str(r) + "\n" + r.worst_cells()
+    assert r.n_fail > 100 and abs(r.fail_z) < 4.0
+    # the expected failure probability agrees with an independent hemisphere quadrature of the
+    # pdf (panels break the lobe's steep flank; the pdf is smooth above the horizon)
+    rule = composite_gauss_legendre_hemisphere((0.3, 0.5, 0.7, 0.9), 24, 256)
+    p_fail = 1.0 - float(integrate(pdf, rule))
+    assert r.expected_fail_fraction == pytest.approx(p_fail, rel=1e-4)
+    # ... and the observed failure fraction matches it within binomial noise
+    assert abs(r.fail_fraction - p_fail) < 4.0 * math.sqrt(p_fail * (1.0 - p_fail) / N)
+    assert r.pdf_max_rel_err < 1e-10
+
+
+def test_lobe_choice_uniform_is_passed_to_a_two_argument_sampler():
+    sample, pdf = phong()
+
+    @jax.jit
+    def mixture_sample(uc, u):  # 30 % cosine, 70 % tilted Phong, chosen by uc
+        wi_c, _ = cosine_sample(u)
+        wi_p, _ = sample(u)
+        wi = jnp.where((uc < 0.3)[:, None], wi_c, wi_p)
+        ok = wi[:, 2] > 0.0
+        return wi, jnp.where(ok, mixture_pdf(jnp.where(ok[:, None], wi, 0.0)), 0.0)
+
+    @jax.jit
+    def mixture_pdf(wi):
+        return 0.3 * cosine_pdf(wi) + 0.7 * pdf(wi)
+
+    r = chi2.chi2_test(mixture_sample, mixture_pdf, n_samples=N)
+    assert r.passed, str(r) + "\n" + r.worst_cells()
+    assert r.n_fail > 0 and r.pdf_max_rel_err < 1e-10
+
+
+# --------------------------------------------------------------------------------------------
+# Negative controls: broken samplers fail
+# --------------------------------------------------------------------------------------------
+
+
+def test_pdf_scaled_by_1p1_fails():
+    r = chi2.chi2_test(cosine_sample, cosine_pdf_scaled, n_samples=N)
+    assert not r.passed
+    assert r.p_value < r.threshold and r.statistic > 5.0 * _critical(r), str(r)
+    np.testing.assert_allclose(r.expected.sum(), 1.1 * N, rtol=1e-12)
+    assert r.expected_fail_fraction == 0.0  # clamped: the pdf integrates to 1.1
+    assert r.pdf_mismatch_fraction == 1.0  # the sampler's own pdf disagrees everywhere
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_exponent_drift_21_vs_20_fails(seed):
+    sample, pdf = phong(n_sample=EXPONENT + 1, n_pdf=EXPONENT)
+    r = chi2.chi2_test(sample, pdf, n_samples=N, seed=seed)
+    assert not r.passed
+    # well clear of the rejection boundary, not a borderline fluke
+    assert r.p_value < 1e-6 * r.threshold and r.statistic > 2.0 * _critical(r), str(r)
+
+
+def test_exponent_drift_about_the_normal_fails_on_a_finer_mu_grid():
+    # A lobe about the normal falls in one 0.2-wide mu band of the 10 x 20 grid, which hides its
+    # width. It is rotationally symmetric, so a fine grid in mu and a coarse one in phi resolve the
+    # width without diluting the counts.
+    sample, pdf = phong(n_sample=EXPONENT + 1, n_pdf=EXPONENT, tilt=0.0)
+    r = chi2.chi2_test(sample, pdf, n_samples=N, res_mu=40, res_phi=4)
+    assert not r.passed and r.statistic > 2.0 * _critical(r), str(r)
+
+
+def test_phi_restricted_to_0_1p9pi_fails():
+    sample, pdf = phong(phi_max=1.9 * math.pi)
+    r = chi2.chi2_test(sample, pdf, n_samples=N)
+    assert not r.passed and r.statistic > 5.0 * _critical(r), str(r)
+    table = r.worst_cells(3)
+    assert len(table.splitlines()) == 3 + 2  # header, 3 cells, failures
+
+
+def test_cosine_sampler_phi_restricted_fails():
+    @jax.jit
+    def sample(u):
+        return cosine_sample(jnp.stack([u[:, 0], 0.95 * u[:, 1]], axis=-1))
+
+    r = chi2.chi2_test(sample, cosine_pdf, n_samples=N)
+    assert not r.passed and r.statistic > 5.0 * _critical(r), str(r)
+    assert r.observed[:, -1].sum() == 0  # the last azimuth column [1.9 pi, 2 pi) stays empty
+
+
+def test_samples_where_the_pdf_is_zero_fail():
+    @jax.jit
+    def sample(u):  # mirrors 1 % of the cosine samples below the horizon, pdf still > 0
+        wi, p = cosine_sample(u)
+        flip = (u[:, 0] < 0.01)[:, None]
+        return jnp.where(flip, wi * jnp.array([1.0, 1.0, -1.0]), wi), p
+
+    r = chi2.chi2_test(sample, cosine_pdf, n_samples=N)
+    assert not r.passed
+    assert r.n_zero_cell_samples > 0 and r.statistic == math.inf and r.p_value == 0.0
+    assert r.to_dict()["statistic"] is None
+
+
+def test_wrong_failure_count_fails():
+    @jax.jit
+    def sample(uc, u):  # 2 % of samples fail at random, though the pdf integrates to 1
+        wi, p = cosine_sample(u)
+        return wi, jnp.where(uc < 0.02, 0.0, p)
+
+    r = chi2.chi2_test(sample, cosine_pdf, n_samples=N)
+    assert not r.passed
+    assert r.fail_fraction == pytest.approx(0.02, abs=0.002) and abs(r.fail_z) > r.fail_z_threshold
+
+
+def test_invalid_samples_fail():
+    @jax.jit
+    def sample(u):
+        wi, p = cosine_sample(u)
+        return wi, jnp.where(u[:, 1] < 1e-3, jnp.nan, p)
+
+    r = chi2.chi2_test(sample, cosine_pdf, n_samples=N)
+    assert not r.passed and r.n_invalid > 0
+    assert any("invalid" in s for s in r.reasons)
+
+
+def test_negative_pdf_fn_fails():
+    r = chi2.chi2_test(cosine_sample, lambda wi: cosine_pdf(wi) - 0.01, n_samples=20_000)
+    assert not r.passed and any("negative" in s for s in r.reasons)
+
+
+# --------------------------------------------------------------------------------------------
+# Determinism, reporting, BRDF wrapper, float32
+# --------------------------------------------------------------------------------------------
+
+
+def test_determinism_and_chunk_independence():
+    sample, pdf = phong()
+    a = chi2.chi2_test(sample, pdf, n_samples=20_000, seed=7)
+    b = chi2.chi2_test(sample, pdf, n_samples=20_000, seed=7)
+    assert a.statistic == b.statistic and a.p_value == b.p_value
+    np.testing.assert_array_equal(a.observed, b.observed)
+    c = chi2.chi2_test(sample, pdf, n_samples=20_000, seed=7, chunk_size=3_000)
+    np.testing.assert_array_equal(a.observed, c.observed)
+    assert a.n_fail == c.n_fail
+    d = chi2.chi2_test(sample, pdf, n_samples=20_000, seed=8)
+    assert not np.array_equal(a.observed, d.observed)
+
+
+def test_report_formats():
+    r = chi2.chi2_test(sphere_sample, sphere_pdf, n_samples=20_000, test_count=10)
+    assert r.threshold == pytest.approx(chi2.sidak_threshold(0.01, 10))
+    assert str(r).startswith("chi2 test PASSED")
+    d = r.to_dict()
+    text = json.dumps(d, allow_nan=False)
+    assert json.loads(text)["dof"] == r.dof
+    assert np.array_equal(np.asarray(d["observed"]), r.observed)
+    assert d["res_mu"] == r.res_mu and isinstance(d["passed"], bool)
+
+
+class _MixtureBRDF:
+    """Test double with the model API: ``sample(wo, uc, u) -> obj(.wi, .pdf)``, ``pdf(wi, wo)``.
+
+    Lambertian (weight ``p_diffuse``) plus a Phong lobe (exponent 20) about the mirror direction
+    of ``wo``; ``sample_p_diffuse`` is the lobe-selection probability actually used by ``sample``.
+    """
+
+    def __init__(self, p_diffuse=0.4, sample_p_diffuse=None):
+        self.p = p_diffuse
+        self.ps = p_diffuse if sample_p_diffuse is None else sample_p_diffuse
+
+    class Sample:
+        def __init__(self, wi, pdf):
+            self.wi, self.pdf = wi, pdf
+
+    def _lobe(self, wo):
+        return wo * jnp.array([-1.0, -1.0, 1.0])
+
+    def pdf(self, wi, wo):
+        c = jnp.clip(jnp.sum(wi * self._lobe(wo), axis=-1), 0.0, None)
+        phong_pdf = 21.0 / (2.0 * jnp.pi) * c**20
+        total = self.p * wi[..., 2] / jnp.pi + (1.0 - self.p) * phong_pdf
+        return jnp.where(wi[..., 2] > 0.0, total, 0.0)
+
+    def sample(self, wo, uc, u):
+        r = self._lobe(wo)
+        t = jnp.cross(jnp.array([0.0, 0.0, 1.0]), r)
+        t = t / jnp.linalg.norm(t, axis=-1, keepdims=True)
+        b = jnp.cross(r, t)
+        loc_p = _from_local(u[:, 0] ** (1.0 / 21.0), 2.0 * jnp.pi * u[:, 1])
+        wi_p = loc_p[:, :1] * t + loc_p[:, 1:2] * b + loc_p[:, 2:] * r
+        wi_d = _from_local(jnp.sqrt(u[:, 0]), 2.0 * jnp.pi * u[:, 1])
+        wi = jnp.where((uc < self.ps)[:, None], wi_d, wi_p)
+        ok = wi[:, 2] > 0.0
+        return self.Sample(wi, jnp.where(ok, self.pdf(jnp.where(ok[:, None], wi, 0.0), wo), 0.0))
+
+
+WO = np.array([math.sin(math.radians(50.0)), 0.0, math.cos(math.radians(50.0))])
+
+
+def test_brdf_wrapper_passes_for_a_consistent_model():
+    r = chi2.chi2_test_brdf(_MixtureBRDF(), WO, n_samples=N)
+    assert r.passed, str(r) + "\n" + r.worst_cells()
+    assert r.n_fail > 0 and r.pdf_max_rel_err < 1e-10
+
+
+def test_brdf_wrapper_fails_for_a_wrong_lobe_selection():
+    r = chi2.chi2_test_brdf(_MixtureBRDF(0.4, sample_p_diffuse=0.45), WO, n_samples=N)
+    assert not r.passed and r.statistic > 2.0 * _critical(r), str(r)
+
+
+def test_float32_uniforms_and_directions():
+    r = chi2.chi2_test(cosine_sample, cosine_pdf, n_samples=20_000, dtype=jnp.float32)
+    assert r.passed, str(r)
+    assert r.pdf_max_rel_err < 1e-5
