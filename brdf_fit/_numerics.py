@@ -43,6 +43,14 @@ def safe_sqrt(x, eps: float = SQRT_EPS):
     return jnp.where(ok, jnp.sqrt(xs), 0.0)
 
 
+def safe_hypot(x, y):
+    """``sqrt(x^2 + y^2)`` without overflow/underflow of the squares (``jnp.hypot``), with a finite
+    gradient (bounded by 1 in each argument; 0 at the origin)."""
+    ok = (x != 0) | (y != 0)
+    xs = jnp.where(ok, x, 1.0)
+    return jnp.where(ok, jnp.hypot(xs, y), 0.0)
+
+
 def safe_rsqrt(x, eps: float = SQRT_EPS):
     """``1/sqrt(x)`` where ``x > eps``; 0 elsewhere (value and gradient)."""
     ok = x > eps
@@ -51,10 +59,16 @@ def safe_rsqrt(x, eps: float = SQRT_EPS):
 
 
 def safe_div(a, b, eps: float = 0.0):
-    """``a / b`` where ``|b| > eps``; 0 elsewhere (value and gradient)."""
+    """``a / b`` where ``|b| > eps``; 0 elsewhere (value and gradient).
+
+    Written as ``a * (1/b)``: in reverse mode the cotangent of ``1/b`` is then ``ct * a`` before
+    it meets ``-1/b^2``. With ``a / b`` JAX forms ``ct / b^2`` first, which overflows float32 for a
+    large cotangent and a small ``b`` and turns ``inf * 0`` into NaN where ``a = 0`` (seen in the
+    conductor Fresnel at eta = 1, cos = 1e-7 under a grazing GGX lobe of alpha = 1e-4).
+    """
     ok = jnp.abs(b) > eps
     bs = jnp.where(ok, b, 1.0)
-    return jnp.where(ok, a / bs, 0.0)
+    return jnp.where(ok, a * (1.0 / bs), 0.0)
 
 
 def safe_log(x, eps: float = 0.0):

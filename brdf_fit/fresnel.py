@@ -20,7 +20,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax.numpy as jnp
 
-from ._numerics import pow5, safe_div, safe_sqrt
+from ._numerics import pow5, safe_div, safe_hypot, safe_sqrt
 
 __all__ = [
     "schlick",
@@ -61,9 +61,11 @@ def dielectric(cos_i, eta):
     inside = c < 0
     eta = jnp.where(inside, 1.0 / eta, eta)
     c = jnp.abs(c)
-    sin2_t = (1.0 - c * c) / (eta * eta)
-    tir = sin2_t >= 1.0
-    cos_t = safe_sqrt(1.0 - sin2_t)  # gradient-safe at the critical angle
+    # cos_t^2 = 1 - (1 - c^2)/eta^2 written as ((eta - 1)(eta + 1) + c^2)/eta^2: no cancellation
+    # of 1 - c^2 in float32 at grazing (where 1 - c^2 rounds to 1 for c < 3e-4)
+    cos2_t = ((eta - 1.0) * (eta + 1.0) + c * c) / (eta * eta)
+    tir = cos2_t <= 0.0
+    cos_t = safe_sqrt(cos2_t)  # gradient-safe at the critical angle
     r_par = safe_div(eta * c - cos_t, eta * c + cos_t)
     r_perp = safe_div(c - eta * cos_t, c + eta * cos_t)
     F = 0.5 * (r_par * r_par + r_perp * r_perp)
@@ -89,23 +91,31 @@ def conductor(cos_i, eta, k):
     c = jnp.clip(cos_i, 0.0, 1.0)
     c2 = c * c
     s2 = 1.0 - c2
-    eta2 = eta * eta
-    ek2 = eta2 * k * k
-    t0 = eta2 - k * k - s2
-    a2b2 = safe_sqrt(t0 * t0 + 4.0 * ek2)
+    em1 = (eta - 1.0) * (eta + 1.0)  # eta^2 - 1, exact near eta = 1
+    kk = k * k
+    t0 = em1 + c2 - kk  # = eta^2 - k^2 - s2 without cancelling 1 - c^2 (float32 at grazing)
+    a2b2 = safe_hypot(t0, 2.0 * eta * k)  # sqrt(t0^2 + 4 eta^2 k^2), gradient bounded by 1
     pos = t0 >= 0
-    a2_pos = 0.5 * (a2b2 + jnp.where(pos, t0, 0.0))
-    a2_neg = safe_div(2.0 * ek2, a2b2 - jnp.where(pos, 0.0, t0))
-    a = safe_sqrt(jnp.where(pos, a2_pos, a2_neg))
-    t1 = a2b2 + c2
-    t2 = 2.0 * a * c
-    Rs = safe_div(t1 - t2, t1 + t2)
-    t3 = a2b2 * c2 + s2 * s2
-    t4 = t2 * s2
-    Rp = Rs * safe_div(t3 - t4, t3 + t4)
+    t0p = jnp.where(pos, t0, 0.0)
+    t0n = jnp.where(pos, 0.0, t0)
+    # a^2 = (a2b2 + t0)/2; for t0 < 0 the equal 2 eta^2 k^2/(a2b2 - t0) avoids cancellation
+    a2 = jnp.where(pos, 0.5 * (a2b2 + t0p), safe_div(2.0 * eta * eta * kk, a2b2 - t0n))
+    a = safe_sqrt(a2)
+    b2 = jnp.maximum(a2b2 - a2, 0.0)
+    # a - c = (a^2 - c^2)/(a + c), with a^2 - c^2 = (a2b2 - t0)/2 + eta^2 - 1 - k^2 for t0 >= 0:
+    # both exact where the reflectance vanishes (eta = 1, k = 0), so F keeps its zero and its
+    # zero derivative there without huge intermediate terms (which overflow float32 gradients
+    # at cos = 1e-7, where F ~ (eta - 1)^2/(4 cos^4))
+    a2mc2 = jnp.where(pos, 0.5 * (a2b2 - t0p) + em1 - kk, a2 - c2)
+    amc = safe_div(a2mc2, a + c)
+    # numerators as sums of squares, (a - c)^2 + b^2 = a2b2 + c^2 - 2ac and
+    # (ac - s2)^2 + b^2 c^2 = a2b2 c^2 + s2^2 - 2ac s2: never negative
+    den_s = (a + c) ** 2 + b2
+    Rs = safe_div(amc * amc + b2, den_s)
+    Rp = Rs * safe_div((a * c - s2) ** 2 + b2 * c2, (a * c + s2) ** 2 + b2 * c2)
     F = 0.5 * (Rs + Rp)
-    # t1 + t2 = 0 only for eta = 1, k = 0 at exact grazing: the limit there is 1.
-    return jnp.where(t1 + t2 > 0, F, 1.0)
+    # den_s = 0 only for eta = 1, k = 0 at exact grazing: the limit there is 1.
+    return jnp.where(den_s > 0, F, 1.0)
 
 
 def f0_from_ior(eta, k=0.0):
