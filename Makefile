@@ -1,0 +1,34 @@
+# One word per job on a fresh machine with Python 3.11+: each target creates the virtual
+# environment it needs (./.venv) on first use.
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+
+.PHONY: setup demo test test-all lint bench clean
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e '.[test,plot,bench]'
+	touch $(STAMP)
+
+setup: $(STAMP)
+
+demo: $(STAMP)          ## the main job on its embedded default
+	$(BIN)/brdf-fit demo
+
+test: $(STAMP)          ## the default test suite (what CI runs)
+	$(BIN)/python -m pytest -q -m "not slow"
+
+test-all: $(STAMP)      ## including the long statistical/convergence tests
+	$(BIN)/python -m pytest -q
+
+lint: $(STAMP)
+	$(BIN)/ruff check brdf_fit data_synth tests benchmarks
+
+bench: $(STAMP)         ## re-run the committed benchmarks (results in benchmarks/results/)
+	$(BIN)/python benchmarks/bench_eval.py
+
+clean:
+	rm -rf $(VENV) build *.egg-info .pytest_cache
