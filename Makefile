@@ -19,10 +19,10 @@ demo: $(STAMP)          ## the main job on its embedded default
 	$(BIN)/brdf-fit demo
 
 test: $(STAMP)          ## the default test suite (what CI runs)
-	$(BIN)/python -m pytest -q -m "not slow"
+	$(BIN)/python -m pytest -q
 
 test-all: $(STAMP)      ## including the long statistical/convergence tests
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -m "slow or not slow"
 
 lint: $(STAMP)
 	$(BIN)/ruff check brdf_fit data_synth tests benchmarks

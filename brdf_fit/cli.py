@@ -2,6 +2,8 @@
 
     brdf-fit models [--json]
     brdf-fit eval MODEL [--param NAME=VALUE ...] [--theta-i-deg ...] [--theta-o-deg ...] [--json]
+    brdf-fit check MODEL [--param NAME=VALUE ...] [--check NAME ...] [--json]
+    brdf-fit check --all [--json]
     brdf-fit demo [--json]
 """
 
@@ -124,6 +126,87 @@ def cmd_eval(args) -> int:
     return 0
 
 
+class _Progress:
+    """One status line on stderr (rewritten in place on a terminal, plain lines otherwise)."""
+
+    def __init__(self, total: int, enabled: bool = True):
+        self.total, self.done, self.enabled = total, 0, enabled
+        self.tty = sys.stderr.isatty()
+
+    def __call__(self, model: str, check: str) -> None:
+        if not self.enabled:
+            return
+        self.done += 1
+        width = 24
+        filled = int(width * (self.done - 1) / max(self.total, 1))
+        bar = "#" * filled + "-" * (width - filled)
+        msg = f"[{bar}] {self.done}/{self.total} {model}: {check}"
+        if self.tty:
+            print("\r" + msg.ljust(78), end="", file=sys.stderr, flush=True)
+        else:
+            print(msg, file=sys.stderr, flush=True)
+
+    def close(self) -> None:
+        if self.enabled and self.tty:
+            print("\r" + " " * 78 + "\r", end="", file=sys.stderr, flush=True)
+
+
+def _print_check_table(results) -> None:
+    print(f"{results[0].model}")
+    print(f"  {'check':<20} {'statistic':>12} {'threshold':>12}  {'status':<26} {'time':>7}")
+    for r in results:
+        stat = "-" if not r.applicable else f"{r.statistic:12.4g}"
+        thr = "-" if not r.applicable else f"{r.threshold:12.4g}"
+        print(f"  {r.check:<20} {stat:>12} {thr:>12}  {r.status:<26} {r.seconds:6.2f}s")
+        if r.expected_failure and r.applicable:
+            print(f"  {'':<20} reason: {r.expected_failure}")
+        elif not r.applicable:
+            print(f"  {'':<20} ({r.details.get('reason', '')})")
+
+
+def cmd_check(args) -> int:
+    import jax
+
+    if not args.float32:  # verification wants float64 (reference tolerances are set for it)
+        jax.config.update("jax_enable_x64", True)
+    from . import checks
+
+    reg = _registry()
+    if args.all and args.model:
+        raise CLIError("give a MODEL or --all, not both")
+    if not args.all and not args.model:
+        raise CLIError("give a MODEL (see 'brdf-fit models') or --all")
+    names = list(reg.names()) if args.all else [reg.get(args.model).name]
+    params = {} if args.all else parse_params(args.param, reg.get(names[0]))
+    if args.all and args.param:
+        raise CLIError("--param applies to a single MODEL, not to --all")
+    selected = args.check or list(checks.CHECKS)
+    for c in selected:
+        if c not in checks.CHECKS:
+            raise CLIError(f"unknown check {c!r}; valid checks: {', '.join(checks.CHECKS)}")
+    progress = _Progress(len(names) * len(selected), enabled=not args.quiet)
+    all_results = []
+    try:
+        for name in names:
+            res = checks.run_checks(name, params=params, checks=selected, progress=progress)
+            all_results.append(res)
+            if not args.json:
+                progress.close()
+                _print_check_table(res)
+                print()
+    finally:
+        progress.close()
+    flat = [r for res in all_results for r in res]
+    bad = [r for r in flat if not r.ok]
+    if args.json:
+        print(json.dumps([r.to_dict() for r in flat], indent=2))
+    else:
+        n_exp = sum(1 for r in flat if r.applicable and r.expected_failure and not r.passed)
+        print(f"{len(flat)} checks on {len(names)} model(s): {len(bad)} failed, "
+              f"{n_exp} expected failure(s) (declared in the registry with reasons)")
+    return 1 if bad else 0
+
+
 def cmd_demo(args) -> int:
     """The main job on an embedded default. For now: the model list and evaluation tables; the
     fitting issue grows it into synthesise -> fit -> compare -> check -> plots."""
@@ -160,6 +243,19 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--theta-o-deg", type=float, nargs="+", default=[0.0, 30.0, 60.0, 85.0])
     e.add_argument("--json", action="store_true")
     e.set_defaults(func=cmd_eval)
+
+    c = sub.add_parser("check", help="energy, reciprocity, normalisation and sampling checks")
+    c.add_argument("model", nargs="?", help="registry name (see 'brdf-fit models')")
+    c.add_argument("--all", action="store_true", help="check every registered model")
+    c.add_argument("--param", action="append", metavar="NAME=VALUE")
+    c.add_argument("--check", action="append", metavar="NAME",
+                   help="run only this check (repeatable); default: all")
+    c.add_argument("--json", action="store_true",
+                   help="one record per (model, check): model, check, passed, statistic, ...")
+    c.add_argument("--quiet", action="store_true", help="no progress bar")
+    c.add_argument("--float32", action="store_true",
+                   help="check in float32 (default: float64; tolerances scale with epsilon)")
+    c.set_defaults(func=cmd_check)
 
     d = sub.add_parser("demo", help="the main job on an embedded default (no input needed)")
     d.add_argument("--json", action="store_true")

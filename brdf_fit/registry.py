@@ -282,6 +282,13 @@ register(Entry(
     params=(_alpha(), _unit("f0", (0.04, 0.04, 0.04), "normal-incidence reflectance")),
     reference=f"{_WALTER} (D eq. 25, rational G1 eq. 27, separable G eq. 23); {_SCHLICK}",
     description="Beckmann D, separable Smith G with Walter's rational Lambda, Schlick F",
+    expected_failures={
+        "weak-white-furnace": (
+            "Walter et al. 2007's rational Lambda approximates the exact Beckmann Lambda to "
+            "0.35% in G1, so the masking identity holds only to ~6e-4 (exact-Lambda 'beckmann' "
+            "passes to 1e-15)"
+        ),
+    },
 ))
 
 register(Entry(
@@ -371,4 +378,16 @@ register(Entry(
         f"1977; normalised NDF and Beckmann-mapped Smith G: {_WALTER} (section 5.2)"
     ),
     description="Blinn-Phong NDF, Smith G at the equivalent Beckmann width, Schlick F",
+    expected_failures={
+        "weak-white-furnace": (
+            "no exact Smith Lambda exists for the Blinn-Phong NDF; the Beckmann Lambda at "
+            "alpha = sqrt(2/(n + 2)) (Walter et al. 2007, section 5.2) breaks the masking "
+            "identity by about 0.6% at n = 50"
+        ),
+        "white-furnace": (
+            "the same masking mismatch makes the F = 1 lobe reflect more than it receives at "
+            "grazing views: E = 1.0135 at cos = 0.001, 1.0029 at cos = 0.01 for n = 50 (confirmed "
+            "by a plain 2000 x 2000 Gauss-Legendre rule)"
+        ),
+    },
 ))
