@@ -1,0 +1,197 @@
+"""Gonioreflectometer measurements in canonical form: :class:`GonioData`.
+
+One sample is a pair of directions and a BRDF value per channel:
+
+``wi``, ``wo``   (N, 3) unit vectors in the local frame (z = normal), pointing away from the surface
+``value``        (N, C) BRDF in 1/sr (not multiplied by the cosine), C channels
+``weight``       (N, C) non-negative per-sample weights; 0 masks a sample (missing, saturated,
+                 below the horizon); ``1/sigma^2`` when uncertainties are known
+``sigma``        (N, C) standard deviations of ``value``, or None
+``channels``     C channel names: ``("R", "G", "B")``, ``("Y",)`` or wavelengths ``("550nm", ...)``
+``metadata``     free JSON-able dict (instrument, recipe, provenance, units)
+
+Readers convert every file layout (degrees, BRF, BRDF times cos) into this form and validate it
+with :meth:`GonioData.validate`, which names the sample and the problem instead of letting an
+error surface deep inside JAX.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from typing import Any
+
+import numpy as np
+
+__all__ = ["GonioData", "DataError", "wavelength_channels", "channel_wavelengths"]
+
+
+class DataError(ValueError):
+    """Invalid measurement data (the message names the sample, column or field)."""
+
+
+#: Unit-length tolerance for directions: values written with 6 significant digits (CSV angles in
+#: degrees to 1e-4) reproduce unit vectors to ~1e-6; 1e-4 accepts those, rejects real errors.
+UNIT_TOL = 1e-4
+
+
+def wavelength_channels(wavelengths_nm) -> tuple[str, ...]:
+    """Channel names for spectral data: ``("400nm", "410nm", ...)``."""
+    return tuple(f"{float(w):g}nm" for w in np.asarray(wavelengths_nm, float))
+
+
+def channel_wavelengths(channels) -> np.ndarray | None:
+    """Wavelengths (nm) if every channel is named ``<number>nm``, else None."""
+    vals = []
+    for c in channels:
+        m = re.fullmatch(r"\s*([0-9.]+)\s*nm\s*", str(c))
+        if not m:
+            return None
+        vals.append(float(m.group(1)))
+    return np.asarray(vals)
+
+
+@dataclasses.dataclass(frozen=True)
+class GonioData:
+    """Measured (or synthesised) BRDF samples in canonical form (see the module docstring)."""
+
+    wi: np.ndarray
+    wo: np.ndarray
+    value: np.ndarray
+    weight: np.ndarray | None = None
+    sigma: np.ndarray | None = None
+    channels: tuple[str, ...] = ("Y",)
+    metadata: dict[str, Any] = dataclasses.field(default_factory=dict)
+
+    def __post_init__(self):
+        wi = np.asarray(self.wi, dtype=np.float64)
+        wo = np.asarray(self.wo, dtype=np.float64)
+        value = np.asarray(self.value, dtype=np.float64)
+        if value.ndim == 1:
+            value = value[:, None]
+        n = value.shape[0]
+        weight = (np.ones_like(value) if self.weight is None
+                  else np.broadcast_to(np.asarray(self.weight, np.float64), value.shape).copy())
+        sigma = (None if self.sigma is None
+                 else np.broadcast_to(np.asarray(self.sigma, np.float64), value.shape).copy())
+        object.__setattr__(self, "wi", wi)
+        object.__setattr__(self, "wo", wo)
+        object.__setattr__(self, "value", value)
+        object.__setattr__(self, "weight", weight)
+        object.__setattr__(self, "sigma", sigma)
+        object.__setattr__(self, "channels", tuple(str(c) for c in self.channels))
+        object.__setattr__(self, "metadata", dict(self.metadata))
+        if wi.shape != (n, 3) or wo.shape != (n, 3):
+            raise DataError(
+                f"wi and wo must have shape ({n}, 3) to match {n} values, got {wi.shape} and "
+                f"{wo.shape}"
+            )
+        if len(self.channels) != value.shape[1]:
+            raise DataError(
+                f"{value.shape[1]} value column(s) but {len(self.channels)} channel name(s) "
+                f"{self.channels}"
+            )
+
+    # ------------------------------------------------------------------ properties
+
+    @property
+    def n(self) -> int:
+        return self.value.shape[0]
+
+    @property
+    def n_channels(self) -> int:
+        return self.value.shape[1]
+
+    @property
+    def wavelengths_nm(self) -> np.ndarray | None:
+        return channel_wavelengths(self.channels)
+
+    def __len__(self) -> int:
+        return self.n
+
+    # ------------------------------------------------------------------ validation
+
+    def validate(self, allow_negative_sigmas: float = 5.0) -> GonioData:
+        """Raise :class:`DataError` naming the first offending sample: non-finite numbers,
+        non-unit directions, directions below the horizon with non-zero weight, negative weights,
+        or values more negative than ``allow_negative_sigmas`` standard deviations (noise can make
+        a measured value slightly negative; beyond that it is an error). Returns ``self``."""
+
+        def first(mask):
+            return int(np.flatnonzero(mask.reshape(self.n, -1).any(-1))[0])
+
+        for name in ("wi", "wo", "value", "weight"):
+            arr = getattr(self, name)
+            bad = ~np.isfinite(arr)
+            if bad.any():
+                i = first(bad)
+                raise DataError(f"sample {i}: {name} is not finite ({arr[i].tolist()})")
+        for name in ("wi", "wo"):
+            arr = getattr(self, name)
+            norm = np.linalg.norm(arr, axis=-1)
+            bad = np.abs(norm - 1.0) > UNIT_TOL
+            if bad.any():
+                i = first(bad)
+                raise DataError(f"sample {i}: {name} is not a unit vector (length {norm[i]:.6g})")
+        used = self.weight > 0
+        for name in ("wi", "wo"):
+            below = (getattr(self, name)[:, 2] <= 0)[:, None] & used
+            if below.any():
+                i = first(below)
+                theta = np.degrees(np.arccos(np.clip(getattr(self, name)[i, 2], -1, 1)))
+                raise DataError(
+                    f"sample {i}: {name} is at or below the horizon (theta = {theta:.4g} deg) "
+                    "but has non-zero weight"
+                )
+        if (self.weight < 0).any():
+            i = first(self.weight < 0)
+            raise DataError(f"sample {i}: negative weight {self.weight[i].tolist()}")
+        if self.sigma is not None:
+            if (~np.isfinite(self.sigma) | (self.sigma < 0)).any():
+                i = first(~np.isfinite(self.sigma) | (self.sigma < 0))
+                raise DataError(f"sample {i}: sigma must be finite and >= 0, got "
+                                f"{self.sigma[i].tolist()}")
+            too_negative = (self.value < -allow_negative_sigmas * self.sigma) & used
+        else:
+            too_negative = (self.value < 0) & used
+        if too_negative.any():
+            i = first(too_negative)
+            what = (f"more than {allow_negative_sigmas:g} sigma below 0"
+                    if self.sigma is not None else "negative (no sigma given to explain it)")
+            raise DataError(f"sample {i}: value {self.value[i].tolist()} is {what}")
+        return self
+
+    # ------------------------------------------------------------------ convenience
+
+    def subset(self, index) -> GonioData:
+        """Samples selected by a boolean mask or an index array."""
+        idx = np.asarray(index)
+        return dataclasses.replace(
+            self,
+            wi=self.wi[idx],
+            wo=self.wo[idx],
+            value=self.value[idx],
+            weight=self.weight[idx],
+            sigma=None if self.sigma is None else self.sigma[idx],
+        )
+
+    def with_metadata(self, **kw) -> GonioData:
+        return dataclasses.replace(self, metadata={**self.metadata, **kw})
+
+    def angles_deg(self) -> dict[str, np.ndarray]:
+        """``theta_i, phi_i, theta_o, phi_o`` in degrees (phi in [0, 360))."""
+        out = {}
+        for name, w in (("i", self.wi), ("o", self.wo)):
+            out[f"theta_{name}"] = np.degrees(np.arccos(np.clip(w[:, 2], -1.0, 1.0)))
+            out[f"phi_{name}"] = np.mod(np.degrees(np.arctan2(w[:, 1], w[:, 0])), 360.0)
+        return out
+
+    @staticmethod
+    def from_angles_deg(theta_i, phi_i, theta_o, phi_o, value, **kw) -> GonioData:
+        """Build from angles in degrees (``phi`` measured from the tangent x)."""
+
+        def unit(t, p):
+            t, p = np.radians(np.asarray(t, float)), np.radians(np.asarray(p, float))
+            return np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], -1)
+
+        return GonioData(wi=unit(theta_i, phi_i), wo=unit(theta_o, phi_o), value=value, **kw)
