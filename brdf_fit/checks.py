@@ -18,7 +18,8 @@ Checks (name: statistic <= threshold unless stated):
 ``pdf-normalisation``    max over wo of |Int_H+ pdf - (1 - P_fail)| / sigma, P_fail estimated
                          from ``sample`` (binomial sigma), threshold 5
 ``sampling-weight``      max over wo and channels of |mean(weight) - E(wo)| / standard error,
-                         threshold 5 (the sampler's weights agree with the quadrature albedo)
+                         threshold 5 (the sampler's weights agree with the quadrature albedo),
+                         less the effect of events too rare to be drawn (``RARE_EVENT_COUNT``)
 ``chi2``                 chi-square test of ``sample`` against ``pdf`` at several wo (statistic:
                          the smallest p-value; passes above the Sidak-corrected level)
 ``finite``               number of NaN/Inf in values and gradients (w.r.t. both directions and
@@ -64,6 +65,8 @@ __all__ = [
     "NonReciprocal",
     "Overbright",
     "DriftingSampler",
+    "hard_values",
+    "OverweightSampler",
 ]
 
 #: Tolerance of the energy and white-furnace checks: the lobe-adapted quadrature reaches 1e-6
@@ -81,6 +84,13 @@ RECIPROCITY_EPS = 1e4
 #: zero-variance estimator (Lambert: every weight is rho) differs from the quadrature albedo by
 #: round-off only (1e3 eps: 2.2e-13 in float64, 1.2e-4 in float32).
 WEIGHT_FLOOR_EPS = 1e3
+#: Sampling-weight check: ``|mean - E|`` is first reduced by ``RARE_EVENT_COUNT * max|w| / n``,
+#: the effect of events with probability below what ``n`` draws can see (rule of three: no event
+#: among ``n`` draws is consistent, at 95%, with a probability up to ``3/n``). Measured case: the
+#: original Phong lobe at cos_o = 0.9 loses ~1e-9 of its samples below the horizon, every drawn
+#: weight is exactly rho_s, and without this allowance z = 1e4. For an estimator with variance
+#: the allowance is ~1% of its standard error at n = 2e5 (``3 max|w| / (sigma sqrt(n))``).
+RARE_EVENT_COUNT = 3.0
 #: z-score threshold of the statistical checks (pdf normalisation vs sampled failure rate, mean
 #: weight vs albedo): a false alarm at 5 sigma is ~6e-7 per comparison.
 Z_TOL = 5.0
@@ -412,7 +422,10 @@ def check_sampling_weight(model, name="model", cosines=STAT_COS, n=200_000, seed
         E = np.atleast_1d(directional_albedo(model, wo))
         # floor: round-off of a zero-variance estimator (Lambert's weights are exactly rho)
         floor = WEIGHT_FLOOR_EPS * model_eps(model) * np.maximum(np.abs(E), 1e-300)
-        z = np.abs(mean - E) / np.maximum(se, floor)
+        # events too rare to be seen among n draws (a lobe losing 1e-9 of its samples below the
+        # horizon): the sample standard deviation cannot see them, so allow their effect
+        unseen = RARE_EVENT_COUNT * np.max(np.abs(w), axis=0) / n
+        z = np.maximum(np.abs(mean - E) - unseen, 0.0) / np.maximum(se, floor)
         rows.append({"cos_o": float(wo[2]), "mean_weight": mean, "albedo": E, "z": z})
     worst = float(max(np.max(r["z"]) for r in rows))
     return CheckResult(name, "sampling-weight", worst <= z_tol, worst, z_tol, {"views": rows})
@@ -470,11 +483,27 @@ def hard_case_directions() -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(wi), np.asarray(wo)
 
 
+def hard_values(param, hard=None) -> tuple[float, ...]:
+    """The hard values (``hard``, default ``HARD_PARAMS[param.name]``) of a registry parameter
+    that lie in its valid interval, plus its finite upper bound when that is below the largest
+    hard value (an exponent capped at 2048 is tested at 2048, not at 1e6)."""
+    def inside(v):
+        lo_ok = param.lo is None or (v > param.lo if param.lo_open else v >= param.lo)
+        hi_ok = param.hi is None or (v < param.hi if param.hi_open else v <= param.hi)
+        return lo_ok and hi_ok
+
+    hard = HARD_PARAMS[param.name] if hard is None else hard
+    vals = [v for v in hard if inside(v)]
+    if param.hi is not None and not param.hi_open and param.hi < max(hard) and param.hi not in vals:
+        vals.append(float(param.hi))
+    return tuple(vals)
+
+
 def hard_case_params(entry) -> dict[str, np.ndarray]:
     """Product of the hard values of the entry's parameters (defaults elsewhere), stacked."""
     d = entry.defaults()
     names = [n for n in entry.param_names if n in HARD_PARAMS]
-    combos = list(itertools.product(*[HARD_PARAMS[n] for n in names])) or [()]
+    combos = list(itertools.product(*[hard_values(entry.param(n)) for n in names])) or [()]
     grid = {}
     for name in entry.param_names:
         if name in names:
@@ -626,6 +655,24 @@ class Overbright(AbstractBRDF):
 
     def eval(self, wi, wo):
         return self.factor * self.inner.eval(wi, wo)
+
+    def pdf(self, wi, wo):
+        return self.inner.pdf(wi, wo)
+
+    def sample(self, wo, uc, u):
+        s = self.inner.sample(wo, uc, u)
+        return type(s)(wi=s.wi, pdf=s.pdf, weight=self.factor * s.weight)
+
+
+class OverweightSampler(AbstractBRDF):
+    """Negative control: ``sample`` returns ``factor`` times the correct weight (eval and pdf
+    untouched): a sampler whose weights are biased, also when they have no variance."""
+
+    inner: AbstractBRDF
+    factor: float = 1.0001
+
+    def eval(self, wi, wo):
+        return self.inner.eval(wi, wo)
 
     def pdf(self, wi, wo):
         return self.inner.pdf(wi, wo)

@@ -466,7 +466,7 @@ def chi2_test(
     test_count: int = 1,
     cell_nodes: int = 8,
     *,
-    max_cell_nodes: int = 256,
+    max_cell_nodes: int = 1024,
     min_expected: float = 5.0,
     fail_z_threshold: float = 5.0,
     chunk_size: int = 65_536,

@@ -391,3 +391,15 @@ register(Entry(
         ),
     },
 ))
+
+
+def _register_families():
+    """The model families that build their own entries (kept next to their models)."""
+    from .models import phong, phong_normalized
+
+    for module in (phong, phong_normalized):
+        for entry in module.registry_entries():
+            register(entry)
+
+
+_register_families()

@@ -70,6 +70,15 @@ def test_drifting_sampler_is_rejected(ggx):
     assert not checks.check_sampling_weight(bad, "drift").passed
 
 
+def test_zero_variance_sampler_bias_is_rejected():
+    """Every weight exactly 1.0001 rho (zero variance): the rare-event allowance (3 max|w|/n =
+    1.5e-5 relative at n = 2e5) must not hide a 1e-4 bias."""
+    lam = Lambert(rho=jnp.asarray([0.9, 0.5, 0.2]))
+    assert checks.check_sampling_weight(lam, "lambert").passed
+    r = checks.check_sampling_weight(checks.OverweightSampler(lam, 1.0001), "overweight")
+    assert not r.passed and r.statistic > 1e3 * r.threshold
+
+
 def test_white_furnace_reports_single_scattering_loss():
     r = checks.check_white_furnace(registry.get("ggx").build(alpha=1.0), "ggx")
     assert r.passed
@@ -145,20 +154,16 @@ def test_finite_rejects_a_naive_formula():
             lam = 0.5 * (-1.0 + jnp.sqrt(1.0 + t2))
             return wz * (1.0 + 2.0 * lam)
 
-    class Entry:
-        name = "naive-ggx"
-        param_names = ("alpha",)
+    def build(alpha):
+        m = registry.get("ggx").build(alpha=alpha, f0=jnp.full(3, 0.04, alpha.dtype))
+        return eqx.tree_at(lambda x: x.distribution, m, NaiveGGX(alpha))
 
-        @staticmethod
-        def defaults():
-            return {"alpha": np.asarray(0.3)}
+    # a real registry entry (not registered) with the ggx entry's alpha parameter and interval
+    entry = registry.Entry(name="naive-ggx", builder=build,
+                           params=(registry.get("ggx").param("alpha"),),
+                           reference="negative control", description="tan-form Lambda")
 
-        @staticmethod
-        def build(alpha):
-            m = registry.get("ggx").build(alpha=alpha, f0=jnp.full(3, 0.04, alpha.dtype))
-            return eqx.tree_at(lambda x: x.distribution, m, NaiveGGX(alpha))
-
-    r = checks.check_finite(Entry)
+    r = checks.check_finite(entry)
     assert not r.passed and r.statistic > 0
 
 

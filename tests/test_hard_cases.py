@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from brdf_fit import registry
+from brdf_fit.checks import hard_values
 
 COS = [1e-7, 1e-4, 1e-2, 0.5, 1.0]
 HARD = {
@@ -69,7 +70,9 @@ def param_grid(entry):
     """Product of the hard values of the entry's parameters (defaults for the others)."""
     d = entry.defaults()
     names = [n for n in entry.param_names if n in HARD]
-    combos = list(itertools.product(*[HARD[n] for n in names])) or [()]
+    # each parameter's hard values inside its valid interval (plus a finite upper bound)
+    combos = list(itertools.product(
+        *[hard_values(entry.param(n), HARD[n]) for n in names])) or [()]
     grid = {}
     for name in entry.param_names:
         if name in names:

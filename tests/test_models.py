@@ -186,7 +186,12 @@ def test_batch_shapes_broadcast_and_jit_equals_eager(entry, models):
     ch = m.channels()
     assert f.shape == ((4, 5) if ch is None else (4, 5, ch))
     flat = m.eval(wi.reshape(-1, 3), wo.reshape(-1, 3))
-    np.testing.assert_array_equal(np.asarray(f).reshape(flat.shape), flat)
+    # equal to rounding: XLA's CPU backend vectorises (and may contract a*b + c into fused
+    # multiply-adds) differently for different shapes; measured: the incomplete-beta continued
+    # fraction of phong-energy-normalized differs by <= 2 ulp between shapes (4, 5) and (20,),
+    # every other model is bit-identical
+    eps = np.finfo(np.asarray(flat).dtype).eps
+    np.testing.assert_allclose(np.asarray(f).reshape(flat.shape), flat, rtol=4 * eps, atol=0)
     # a single wo broadcast against many wi
     one = m.eval(wi.reshape(-1, 3), wo[0, 0])
     np.testing.assert_allclose(one[0], flat[0])
