@@ -191,7 +191,11 @@ class GonioData:
         """Build from angles in degrees (``phi`` measured from the tangent x)."""
 
         def unit(t, p):
-            t, p = np.radians(np.asarray(t, float)), np.radians(np.asarray(p, float))
-            return np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], -1)
+            t_deg = np.asarray(t, float)
+            t, p = np.radians(t_deg), np.radians(np.asarray(p, float))
+            # theta = 90 deg is the horizon: cos exactly 0, not np.cos(pi/2) = 6e-17 (which
+            # validate() would accept as above the horizon)
+            cos_t = np.where(np.abs(t_deg) == 90.0, 0.0, np.cos(t))
+            return np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), cos_t], -1)
 
         return GonioData(wi=unit(theta_i, phi_i), wo=unit(theta_o, phi_o), value=value, **kw)
