@@ -2,8 +2,8 @@
 
 Parameters are optimised in unconstrained space through the registry's intervals (``[lo, hi]``:
 scaled logistic; ``[lo, inf)``: ``lo + softplus``), any subset held fixed, with a least-squares
-solver from optimistix (Levenberg-Marquardt by default; Gauss-Newton with a backtracking line search,
-plain Gauss-Newton and Dogleg selectable).
+solver from optimistix (Levenberg-Marquardt by default; Gauss-Newton with a backtracking line
+search, plain Gauss-Newton and Dogleg selectable).
 
 Residual metrics (per sample and channel; ``f`` measured, ``m`` model, ``c = cos(theta_i)``):
 
