@@ -40,6 +40,15 @@ narrow anisotropic lobes (ridges much thinner than a cell) need this: a fixed 12
 mis-predicted a GGX lobe at cos(theta_o) = 0.03 by 10% in one cell. If ``max_cell_nodes`` is
 reached first, the result fails with that reason rather than testing against unreliable
 expectations. Everything is deterministic for a given seed.
+
+Narrow lobes (a Phong exponent of 1e4 is about 0.6 degrees wide) fall into one or two cells of any
+grid over the sphere, and the test then has no power. ``frame`` and ``mu_edges`` histogram in a
+rotated frame (``mu = frame[2] . wi``, ``phi`` about that axis) with arbitrary edges in ``mu``;
+:func:`lobe_grid` builds one about a lobe axis with edges of equal mass for a power-cosine lobe of
+a given exponent, and :func:`chi2_test_brdf` uses it automatically for models whose
+``quadrature_lobe()`` declares a lobe about the mirror direction narrower than
+:data:`LOBE_GRID_MIN_EXPONENT`. Every cell still covers part of the sphere, so the cells together
+with the failure category remain a complete partition and the failure z-test is unchanged.
 """
 
 from __future__ import annotations
@@ -62,6 +71,8 @@ __all__ = [
     "chi2_test",
     "chi2_test_brdf",
     "default_resolution",
+    "lobe_grid",
+    "LOBE_GRID_MIN_EXPONENT",
     "pooled_chi2_statistic",
     "sidak_threshold",
 ]
@@ -217,7 +228,8 @@ class Chi2Result:
         fail_fraction: observed fraction of samples with ``pdf == 0``.
         expected_fail_fraction: ``1 - sum(expected) / n_samples``, clamped at 0.
         observed: ``(res_mu, res_phi)`` histogram of successful samples (int64); row ``i``
-            covers ``mu`` in ``[-1 + 2 i / res_mu, -1 + 2 (i + 1) / res_mu)``, column ``j`` covers
+            covers ``mu`` in ``[mu_edges[i], mu_edges[i + 1])`` (uniform edges
+            ``-1 + 2 i / res_mu`` unless a grid was given), column ``j`` covers
             ``phi`` in ``[2 pi j / res_phi, 2 pi (j + 1) / res_phi)``.
         expected: ``(res_mu, res_phi)`` expected counts (float64).
         n_fail: number of failed samples (``pdf == 0``).
@@ -263,6 +275,10 @@ class Chi2Result:
     pdf_mismatch_fraction: float | None = None
     reasons: tuple[str, ...] = ()
     cell_nodes_used: int = 0
+    #: edges in ``mu`` of the histogram (``None``: uniform over ``[-1, 1]``)
+    grid_mu_edges: np.ndarray | None = None
+    #: rows: the histogram frame's axes in world coordinates (``None``: the shading frame)
+    frame: np.ndarray | None = None
 
     @property
     def res_mu(self) -> int:
@@ -274,6 +290,8 @@ class Chi2Result:
 
     @property
     def mu_edges(self) -> np.ndarray:
+        if self.grid_mu_edges is not None:
+            return np.asarray(self.grid_mu_edges)
         return np.linspace(-1.0, 1.0, self.res_mu + 1)
 
     @property
@@ -345,7 +363,7 @@ class Chi2Result:
                 v = (
                     v.astype(np.int64).tolist()
                     if v.dtype.kind in "iu"
-                    else [[_json_float(x) for x in row] for row in v.tolist()]
+                    else np.vectorize(_json_float, otypes=[object])(v).tolist()
                 )
             elif isinstance(v, bool | np.bool_):
                 v = bool(v)
@@ -377,6 +395,51 @@ def default_resolution(n_samples: int) -> tuple[int, int]:
     r = 2 * int(round(0.5 * math.sqrt(max(n_samples, 1) / 2000.0)))
     r = min(max(r, 10), 64)
     return r, 2 * r
+
+
+#: :func:`chi2_test_brdf` switches to a :func:`lobe_grid` about the mirror direction for lobes with
+#: an (equivalent) power-cosine exponent at or above this: at n = 50 the lobe's half-mass angle
+#: (~0.17 rad) is already below the 10 x 20 sphere grid's cell size (~0.3 rad).
+LOBE_GRID_MIN_EXPONENT = 50.0
+
+
+def _frame_rows(axis) -> np.ndarray:
+    """Rows ``(t, b, axis)``: an orthonormal frame about ``axis`` (Duff et al. 2017)."""
+    n = np.asarray(axis, dtype=np.float64)
+    n = n / np.linalg.norm(n)
+    sign = 1.0 if n[2] >= 0 else -1.0
+    a = -1.0 / (sign + n[2])
+    b = n[0] * n[1] * a
+    t = np.array([1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0]])
+    return np.stack([t, np.cross(n, t), n])
+
+
+#: Lobe-mass fractions of the tail edges of :func:`lobe_grid` (below the first equal-mass ring):
+#: each tail cell spans two decades of ``mu^(n+1)``, about 4.6 e-folds of the integrand, which a
+#: Gauss-Legendre rule of 8-16 nodes integrates well; one cell from ``mu = 0`` to the first
+#: equal-mass edge would hide the lobe's rise at its upper end from every node and converge to a
+#: wrong value.
+_LOBE_TAIL_MASS = (1e-6, 1e-4, 1e-2)
+
+
+def lobe_grid(axis, exponent: float, res_mu: int = 20) -> tuple[np.ndarray, np.ndarray]:
+    """``(frame, mu_edges)`` of a histogram about ``axis`` for a lobe ``~ max(0, axis.wi)^n``.
+
+    The back hemisphere of the axis gets 2 cells in ``mu`` (edges -1, -0.5, 0). The front one is
+    cut where the power-cosine lobe's mass below ``mu``, ``F(mu) = mu^(n+1)``, takes the tail
+    values :data:`_LOBE_TAIL_MASS` and then ``k / K`` (``K = res_mu - 5`` rings of equal mass), at
+    ``mu = F^(1/(n+1))`` computed as ``exp(log(F)/(n+1))``; every ring of the lobe expects about
+    the same number of samples.
+    """
+    if res_mu < 7:
+        raise ValueError(f"res_mu must be >= 7 for a lobe grid, got {res_mu}")
+    k = res_mu - 2 - len(_LOBE_TAIL_MASS)
+    mass = np.concatenate([_LOBE_TAIL_MASS, np.arange(1, k) / k])
+    front = np.exp(np.log(mass) / (float(exponent) + 1.0))
+    edges = np.concatenate([[-1.0, -0.5, 0.0], front, [1.0]])
+    if np.any(np.diff(edges) <= 0):
+        raise ValueError(f"lobe grid edges are not increasing for exponent {exponent}")
+    return _frame_rows(axis), edges
 
 
 def _takes_lobe_uniform(fn: Callable) -> bool:
@@ -422,10 +485,12 @@ def _eval_pdf_chunked(pdf_fn, dirs: np.ndarray, chunk: int, dtype) -> np.ndarray
     return out
 
 
-def _cell_integrals(pdf_fn, res_mu: int, res_phi: int, nodes: int, chunk: int, dtype) -> np.ndarray:
-    """``(res_mu, res_phi)`` integrals of ``pdf_fn`` over the cells (GL product rule per cell)."""
+def _cell_integrals(pdf_fn, mu_e, res_phi: int, nodes: int, chunk: int, dtype,
+                    frame=None) -> np.ndarray:
+    """``(res_mu, res_phi)`` integrals of ``pdf_fn`` over the cells (GL product rule per cell);
+    ``mu_e`` the edges in ``mu``, ``frame`` (rows: axes) the histogram frame or ``None``."""
     x, w = gauss_legendre_interval(nodes, -1.0, 1.0)
-    mu_e = np.linspace(-1.0, 1.0, res_mu + 1)
+    res_mu = len(mu_e) - 1
     phi_e = np.linspace(0.0, _TWO_PI, res_phi + 1)
     mu_half = 0.5 * np.diff(mu_e)
     phi_half = 0.5 * np.diff(phi_e)
@@ -450,6 +515,8 @@ def _cell_integrals(pdf_fn, res_mu: int, res_phi: int, nodes: int, chunk: int, d
             ],
             axis=-1,
         ).reshape(-1, 3)
+        if frame is not None:
+            dirs = dirs @ frame  # local (rows of frame are the axes) -> world
         vals = _eval_pdf_chunked(pdf_fn, dirs, chunk, dtype).reshape(shape)
         out[sl] = np.einsum("ak,bl,akbl->ab", w_mu[sl], w_phi, vals)
     return out
@@ -475,6 +542,8 @@ def chi2_test(
     pdf_rtol: float = 1e-3,
     norm_tol: float = 1e-3,
     dtype=None,
+    mu_edges=None,
+    frame=None,
 ) -> Chi2Result:
     """Chi-square test that ``sample_fn`` draws directions with the density ``pdf_fn``.
 
@@ -510,6 +579,9 @@ def chi2_test(
         norm_tol: largest accepted ``| |wi| - 1 |`` of a successful sample.
         dtype: float dtype of the uniforms and the quadrature directions passed to the functions
             (default: JAX's default float dtype).
+        mu_edges: increasing edges in ``mu`` from -1 to 1 (overrides ``res_mu``); default uniform.
+        frame: ``(3, 3)`` orthonormal rows ``(x', y', z')``: histogram ``mu = z'.wi`` and ``phi``
+            about ``z'`` from ``x'`` (default: the shading frame). See :func:`lobe_grid`.
     """
     n_samples = int(n_samples)
     if n_samples < 1:
@@ -520,9 +592,21 @@ def chi2_test(
         res_mu = max(2, 2 * int(round(0.25 * res_phi)))  # type: ignore[operator]
     elif res_phi is None:
         res_phi = 2 * int(res_mu)
+    if mu_edges is not None:
+        mu_e = np.asarray(mu_edges, dtype=np.float64)
+        if (mu_e.ndim != 1 or mu_e.size < 2 or mu_e[0] != -1.0 or mu_e[-1] != 1.0
+                or np.any(np.diff(mu_e) <= 0)):
+            raise ValueError("mu_edges must increase from -1 to 1")
+        res_mu = mu_e.size - 1
     res_mu, res_phi = int(res_mu), int(res_phi)
     if res_mu < 1 or res_phi < 1 or cell_nodes < 1:
         raise ValueError("res_mu, res_phi and cell_nodes must be positive")
+    if mu_edges is None:
+        mu_e = np.linspace(-1.0, 1.0, res_mu + 1)
+    if frame is not None:
+        frame = np.asarray(frame, dtype=np.float64)
+        if frame.shape != (3, 3) or not np.allclose(frame @ frame.T, np.eye(3), atol=1e-12):
+            raise ValueError("frame must be a (3, 3) matrix with orthonormal rows")
     threshold = sidak_threshold(alpha, test_count)
     dt = jax.dtypes.canonicalize_dtype(np.float64 if dtype is None else dtype)
     if lobe_uniform is None:
@@ -559,9 +643,14 @@ def chi2_test(
         n_invalid += int(np.sum(bad_pdf | bad_dir))
 
         d = wi[good] / norm[good, None]
+        if frame is not None:
+            d = d @ frame.T  # world -> histogram frame
         mu = np.clip(d[:, 2], -1.0, 1.0)
         phi = np.mod(np.arctan2(d[:, 1], d[:, 0]), _TWO_PI)
-        i = np.minimum(np.floor((mu + 1.0) * (0.5 * res_mu)).astype(np.int64), res_mu - 1)
+        if mu_edges is None:
+            i = np.minimum(np.floor((mu + 1.0) * (0.5 * res_mu)).astype(np.int64), res_mu - 1)
+        else:
+            i = np.clip(np.searchsorted(mu_e, mu, side="right") - 1, 0, res_mu - 1)
         j = np.minimum(np.floor(phi * (res_phi / _TWO_PI)).astype(np.int64), res_phi - 1)
         observed += np.bincount(i * res_phi + j, minlength=res_mu * res_phi)
 
@@ -577,11 +666,11 @@ def chi2_test(
 
     # --- expected counts ------------------------------------------------------------------
     nodes = int(cell_nodes)
-    integrals = _cell_integrals(pdf_fn, res_mu, res_phi, nodes, chunk, dt)
+    integrals = _cell_integrals(pdf_fn, mu_e, res_phi, nodes, chunk, dt, frame)
     converged = False
     while 2 * nodes <= max_cell_nodes:
         nodes *= 2
-        finer = _cell_integrals(pdf_fn, res_mu, res_phi, nodes, chunk, dt)
+        finer = _cell_integrals(pdf_fn, mu_e, res_phi, nodes, chunk, dt, frame)
         change = n_samples * np.abs(finer - integrals)
         fail_change = n_samples * abs(float(np.sum(finer - integrals)))
         noise = 0.1 * np.sqrt(np.maximum(n_samples * finer, 1.0))
@@ -659,20 +748,57 @@ def chi2_test(
         pdf_mismatch_fraction=n_mismatch / n_checked if check_pdf and n_checked else None,
         reasons=tuple(reasons),
         cell_nodes_used=nodes,
+        grid_mu_edges=None if mu_edges is None else mu_e,
+        frame=frame,
     )
 
 
-def chi2_test_brdf(model, wo, **kw) -> Chi2Result:
+def _lobe_exponent(model):
+    """Equivalent power-cosine exponent of a lobe about the mirror direction that ``model``
+    declares through ``quadrature_lobe()`` (``None`` if it declares none): ``("mirror", n)`` is
+    ``n``; ``("half", w)`` (a half-vector lobe of Beckmann-equivalent width ``w``, i.e. Blinn-Phong
+    exponent ``2/w^2 - 2``, Walter et al. 2007 sec. 5.2) is a quarter of that, since the reflected
+    direction moves twice as fast as the half vector (``alpha_r ~ 2 theta_h`` near normal view)."""
+    hint = getattr(model, "quadrature_lobe", None)
+    if hint is None:
+        return None
+    kind, value = hint()
+    try:
+        v = float(np.asarray(value))
+    except (TypeError, ValueError, jax.errors.ConcretizationTypeError):
+        return None
+    if kind == "mirror":
+        return v
+    if kind == "half" and v > 0:
+        return max(2.0 / (v * v) - 2.0, 0.0) / 4.0
+    return None
+
+
+def chi2_test_brdf(model, wo, lobe: str | None = "auto", **kw) -> Chi2Result:
     """:func:`chi2_test` for a BRDF model at one outgoing direction ``wo``.
 
     ``model.sample(wo, uc, u)`` must return an object with ``.wi`` ``(n, 3)`` and ``.pdf``
     ``(n,)``, and ``model.pdf(wi, wo)`` the ``(n,)`` densities; ``wo`` (a single ``(3,)``
     direction) is broadcast to the batch. Both functions are jitted once (the chunks have a fixed
     size). Keyword arguments go to :func:`chi2_test`.
+
+    ``lobe="auto"``: when the model declares a lobe about the mirror direction (``quadrature_lobe``)
+    with an equivalent exponent of at least :data:`LOBE_GRID_MIN_EXPONENT`, and no ``mu_edges`` /
+    ``frame`` are given, the histogram is a :func:`lobe_grid` about the mirror direction of ``wo``
+    (``res_mu`` rings, default 20). ``lobe=None``: the sphere grid.
     """
     wo = jnp.asarray(wo)
     if wo.shape != (3,):
         raise ValueError(f"wo must have shape (3,), got {wo.shape}")
+    if lobe not in ("auto", None):
+        raise ValueError(f"lobe must be 'auto' or None, got {lobe!r}")
+    if lobe == "auto" and "mu_edges" not in kw and "frame" not in kw:
+        n_eq = _lobe_exponent(model)
+        if n_eq is not None and n_eq >= LOBE_GRID_MIN_EXPONENT:
+            w = np.asarray(wo, dtype=np.float64)
+            axis = np.array([-w[0], -w[1], w[2]])
+            frame, edges = lobe_grid(axis, n_eq, int(kw.pop("res_mu", None) or 20))
+            kw["frame"], kw["mu_edges"] = frame, edges
 
     @jax.jit
     def sample_fn(uc, u):

@@ -381,3 +381,47 @@ def test_float32_uniforms_and_directions():
     r = chi2.chi2_test(cosine_sample, cosine_pdf, n_samples=20_000, dtype=jnp.float32)
     assert r.passed, str(r)
     assert r.pdf_max_rel_err < 1e-5
+
+
+# --------------------------------------------------------------------------------------------
+# Lobe-aligned grid for narrow lobes
+# --------------------------------------------------------------------------------------------
+
+
+def _view(cos_o, azimuth=0.7):
+    s = math.sqrt(1.0 - cos_o * cos_o)
+    return np.array([s * math.cos(azimuth), s * math.sin(azimuth), cos_o])
+
+
+def test_lobe_grid_edges_have_equal_lobe_mass():
+    frame, edges = chi2.lobe_grid(np.array([0.3, -0.2, 0.9]), 1e4, 20)
+    np.testing.assert_allclose(frame @ frame.T, np.eye(3), atol=1e-14)
+    np.testing.assert_allclose(frame[2], np.array([0.3, -0.2, 0.9]) / np.linalg.norm([.3, .2, .9]))
+    assert edges[0] == -1 and edges[-1] == 1 and np.all(np.diff(edges) > 0)
+    mass = np.diff(np.clip(edges, 0, 1) ** (1e4 + 1))
+    np.testing.assert_allclose(mass[-14:], 1 / 15, rtol=1e-9)  # 14 rings of mass 1/15
+    np.testing.assert_allclose(mass[-18:-14], [1e-6, 1e-4 - 1e-6, 1e-2 - 1e-4, 1 / 15 - 1e-2],
+                               rtol=1e-9)  # the tail cells
+    with pytest.raises(ValueError, match="res_mu"):
+        chi2.lobe_grid(np.array([0, 0, 1.0]), 10.0, 5)
+
+
+def test_narrow_lobe_uses_lobe_grid_and_rejects_a_drift():
+    """At n = 1e4 the lobe (~0.6 deg) fills one or two cells of the sphere grid, so a sampler whose
+    lobe is 5% too narrow goes unseen there; the lobe-aligned grid sees it."""
+    from brdf_fit.checks import DriftingSampler
+    from brdf_fit.models.phong_normalized import EnergyNormalizedPhong
+
+    model = EnergyNormalizedPhong(rho_s=0.8, exponent=jnp.asarray(1e4))
+    wo = jnp.asarray(_view(0.3))
+    good = chi2.chi2_test_brdf(model, wo, n_samples=N, test_count=3)
+    assert good.passed, str(good)
+    assert good.frame is not None and good.dof > 100  # the automatic lobe grid was used
+    sphere = chi2.chi2_test_brdf(model, wo, lobe=None, n_samples=N, test_count=3)
+    assert sphere.dof <= 3  # why the lobe grid exists: the sphere grid has no power here
+    bad = DriftingSampler(model, drift=0.05)  # cos = u0^(1.05/(n+1)): a 5% narrower lobe
+    axis = np.asarray(wo) * np.array([-1.0, -1.0, 1.0])
+    frame, edges = chi2.lobe_grid(axis, 1e4, 20)
+    r = chi2.chi2_test_brdf(bad, wo, n_samples=N, test_count=3, frame=frame, mu_edges=edges)
+    assert not r.passed and r.p_value < 1e-6, str(r)
+    assert "mu range" in r.worst_cells() and json.dumps(r.to_dict())
