@@ -4,7 +4,19 @@
     brdf-fit eval MODEL [--param NAME=VALUE ...] [--theta-i-deg ...] [--theta-o-deg ...] [--json]
     brdf-fit check MODEL [--param NAME=VALUE ...] [--check NAME ...] [--json]
     brdf-fit check --all [--json]
-    brdf-fit demo [--json]
+    brdf-fit synth RECIPE -o FILE [--json]
+    brdf-fit fit DATA --model NAME [--fix NAME=VALUE ...] [--init NAME=VALUE ...]
+                 [--metric log|cuberoot|relative|absolute] [--solver NAME] [--max-zenith-deg X]
+                 [--multistart K] [--check NAME ...] [--json]
+    brdf-fit demo [--out DIR] [--json]
+
+``synth`` turns a dataset recipe (``.json``/``.toml``, see :mod:`data_synth.recipes`) into a
+``.csv`` or ``.npz`` file; ``fit`` reads ``.csv``, ``.npz`` (or its ``.json`` sidecar) or MERL
+``.binary`` data and fits a registry model (:func:`brdf_fit.fit.fit`); ``demo`` is the main job on
+an embedded default: synthesise noisy gold, fit several models, rank them, convert the Phong
+exponent to a GGX width, check the best model, write ``demo.json`` and plots. VALUEs are a number
+or comma-separated numbers (one per channel). User errors (bad file, unknown model, parameter,
+metric, check) print one line ``brdf-fit: error: ...`` and exit with status 2.
 """
 
 from __future__ import annotations
@@ -27,12 +39,13 @@ def _registry():
     return registry
 
 
-def parse_params(items: list[str] | None, entry) -> dict:
-    """``NAME=VALUE`` pairs; VALUE is a number or comma-separated numbers (one per channel)."""
+def parse_params(items: list[str] | None, entry, flag: str = "--param") -> dict:
+    """``NAME=VALUE`` pairs; VALUE is a number or comma-separated numbers (one per channel).
+    ``flag`` names the option in error messages."""
     out = {}
     for item in items or []:
         if "=" not in item:
-            raise CLIError(f"--param expects NAME=VALUE, got {item!r}")
+            raise CLIError(f"{flag} expects NAME=VALUE, got {item!r}")
         name, _, text = item.partition("=")
         name = name.strip()
         entry.param(name)  # unknown names raise with the valid list
@@ -40,7 +53,7 @@ def parse_params(items: list[str] | None, entry) -> dict:
             vals = [float(v) for v in text.split(",")]
         except ValueError:
             raise CLIError(
-                f"--param {name}: {text!r} is not a number or comma-separated numbers"
+                f"{flag} {name}: {text!r} is not a number or comma-separated numbers"
             ) from None
         out[name] = vals[0] if len(vals) == 1 else np.asarray(vals)
     return out
@@ -207,24 +220,350 @@ def cmd_check(args) -> int:
     return 1 if bad else 0
 
 
-def cmd_demo(args) -> int:
-    """The main job on an embedded default. For now: the model list and evaluation tables; the
-    fitting issue grows it into synthesise -> fit -> compare -> check -> plots."""
-    angles = [0.0, 30.0, 60.0, 80.0, 89.0]
-    tables = [
-        evaluation_table("ggx-conductor", {"alpha": 0.2}, [30.0, 60.0], angles),
-        evaluation_table("ggx-plastic", {}, [30.0, 60.0], angles),
-        evaluation_table("lambert", {}, [30.0], [0.0, 45.0]),
-    ]
+def _x64() -> None:
+    """Synthesis and fitting run in float64 (solver tolerances and standard errors assume it)."""
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+
+
+def _ext(path: str) -> str:
+    import pathlib
+
+    return pathlib.Path(path).suffix.lower()
+
+
+def read_data(path: str):
+    """:class:`~brdf_fit.data.GonioData` from ``.csv``, ``.npz`` (or its ``.json`` sidecar) or
+    MERL ``.binary``, chosen by the extension."""
+    import os
+
+    from . import io
+
+    ext = _ext(path)
+    readers = {".csv": io.read_csv, ".npz": io.read_npz, ".json": io.read_npz,
+               ".binary": io.read_merl}
+    if ext not in readers:
+        raise CLIError(f"{path}: unknown data format {ext or '(no extension)'!r}; expected .csv, "
+                       ".npz (with its .json sidecar) or a MERL .binary")
+    if not os.path.exists(path):
+        raise CLIError(f"{path}: no such file")
+    return readers[ext](path)
+
+
+def write_data(data, path: str, provenance: dict | None = None) -> list[str]:
+    """Write ``data`` by the extension of ``path`` (``.csv`` or ``.npz``); returns the paths."""
+    from . import io
+
+    ext = _ext(path)
+    try:
+        if ext == ".csv":
+            io.write_csv(data, path)
+            return [path]
+        if ext == ".npz":
+            return list(io.write_npz(data, path, provenance=provenance))
+    except OSError as e:
+        raise CLIError(f"{path}: cannot write ({e.strerror or e})") from None
+    if ext == ".binary":
+        raise CLIError(f"{path}: a MERL .binary file is a full half/difference-angle table, not "
+                       "scattered samples; write .csv or .npz (brdf_fit.io.write_merl tabulates a "
+                       "model)")
+    raise CLIError(f"{path}: unknown output format {ext or '(no extension)'!r}; expected .csv or "
+                   ".npz")
+
+
+def cmd_synth(args) -> int:
+    _x64()
+    from data_synth.recipes import synthesize
+
+    ext = _ext(args.output)
+    if ext not in (".csv", ".npz"):
+        write_data(None, args.output)  # raises the format error before the work
+    data = synthesize(args.recipe)
+    meta = data.metadata
+    files = write_data(data, args.output,
+                       provenance={"command": "brdf-fit synth", "recipe_file": str(args.recipe)})
+    summary = {"files": files, "n_samples": data.n, "channels": list(data.channels),
+               "model": meta["model"], "seed": meta["seed"], "plan": meta["plan"]["name"],
+               "noise": [m["type"] for m in meta["noise"]] if meta["noise"] else []}
     if args.json:
-        print(json.dumps({"models": list(_registry().names()), "tables": tables}, indent=2))
-        return 0
-    cmd_models(argparse.Namespace(json=False))
-    print()
-    for t in tables:
-        _print_eval(t)
-        print()
+        print(json.dumps(summary, indent=2))
+    else:
+        noise = ", ".join(summary["noise"]) or "none"
+        print(f"wrote {', '.join(files)}: {data.n} samples, {data.n_channels} channel(s) "
+              f"({','.join(data.channels)}), model {meta['model']}, seed {meta['seed']}, "
+              f"plan {summary['plan']}, noise {noise}")
     return 0
+
+
+def _check_names(names) -> list[str]:
+    from . import checks
+
+    for c in names or []:
+        if c not in checks.CHECKS:
+            raise CLIError(f"unknown check {c!r}; valid checks: {', '.join(checks.CHECKS)}")
+    return list(names or [])
+
+
+def _param_rows(result, channels) -> list[str]:
+    """One line per parameter (per channel for channel parameters): value +- standard error."""
+    rows = []
+    for name, value in result.params.items():
+        v = np.atleast_1d(np.asarray(value, float))
+        se = result.stderr.get(name)
+        se = None if se is None else np.atleast_1d(np.asarray(se, float))
+        for j, x in enumerate(v):
+            label = name if v.size == 1 else (
+                f"{name}[{channels[j]}]" if len(channels) == v.size else f"{name}[{j}]")
+            err = "(fixed)" if name in result.fixed else (
+                f"+- {se[j]:.3g}" if se is not None else "")
+            rows.append(f"  {label:<16} {x:12.6g}  {err}")
+    return rows
+
+
+def _print_fit(result, data, path: str) -> None:
+    print(f"{result.model_name} fitted to {path}: {result.n_samples} samples x "
+          f"{data.n_channels} channel(s) ({','.join(data.channels)}), metric {result.metric}"
+          + (" (residuals in units of sigma)" if data.sigma is not None else ""))
+    print(f"  {'parameter':<16} {'value':>12}  standard error")
+    for row in _param_rows(result, data.channels):
+        print(row)
+    status = "yes" if result.converged else f"NO ({result.message})"
+    print(f"converged: {status}; steps: {result.steps}; starts: {result.starts}; "
+          f"residual rms: {result.residual_rms:.6g}; time: {result.seconds:.2f} s")
+    if result.checks:
+        print()
+        _print_check_table(result.checks)
+
+
+def cmd_fit(args) -> int:
+    _x64()
+    from .fit import fit
+
+    reg = _registry()
+    entry = reg.get(args.model)  # unknown models fail before the data are read
+    fix = parse_params(args.fix, entry, "--fix")
+    init = parse_params(args.init, entry, "--init")
+    both = sorted(set(fix) & set(init))
+    if both:
+        raise CLIError(f"parameter(s) {', '.join(both)} given both --fix and --init")
+    checks = _check_names(args.check)
+    if args.multistart < 1:
+        raise CLIError(f"--multistart must be >= 1, got {args.multistart}")
+    data = read_data(args.data)
+    if args.max_samples is not None:
+        if args.max_samples < 1:
+            raise CLIError(f"--max-samples must be >= 1, got {args.max_samples}")
+        if data.n > args.max_samples:
+            rng = np.random.default_rng(args.seed)
+            data = data.subset(np.sort(rng.choice(data.n, args.max_samples, replace=False)))
+    result = fit(data, entry.name, fix=fix, init=init, metric=args.metric, solver=args.solver,
+                 cos_weight=args.cos_weight, max_zenith_deg=args.max_zenith_deg,
+                 multistart=args.multistart, seed=args.seed, max_steps=args.max_steps,
+                 checks=checks)
+    if args.json:
+        print(json.dumps(result.to_dict(), indent=2))
+    else:
+        _print_fit(result, data, args.data)
+    failed = [c for c in result.checks if not c.ok]
+    return 0 if result.converged and not failed else 1
+
+
+# ----------------------------------------------------------------------------- demo
+
+#: The demo's dataset: gold (GGX, exact conductor Fresnel, the registry's gold eta/k) at
+#: alpha = 0.2, scanned by a four-axis gonioreflectometer with 1% lognormal noise.
+DEMO_RECIPE = {
+    "name": "demo-gold-ggx",
+    "description": "rough gold (GGX, alpha 0.2) on a four-axis gonioreflectometer, 1% noise",
+    "model": "ggx-conductor",
+    "params": {"alpha": 0.2},
+    "seed": 2024,
+    "plan": {"name": "four_axis",
+             "args": {"theta_i_deg": [0.0, 15.0, 30.0, 45.0, 60.0, 75.0],
+                      "theta_o_deg": [0.0, 10.0, 20.0, 30.0, 40.0, 50.0, 60.0, 70.0, 80.0],
+                      "phi_o_deg": [float(p) for p in range(0, 360, 30)],
+                      "max_zenith_deg": 80.0, "min_separation_deg": 5.0}},
+    "noise": [{"type": "lognormal", "args": {"sigma": 0.01}}],
+}
+#: The models the demo fits, with their start values. ggx-conductor starts from a neutral metal:
+#: the registry's gold default has its red channel at the parameter bounds (eta = 0.001,
+#: k = 100), where F ~ 1 and the gradients with respect to eta and k vanish.
+DEMO_FITS = (
+    ("ggx-conductor", {"alpha": 0.4, "eta": [1.0, 1.0, 1.0], "k": [3.0, 3.0, 3.0]}),
+    ("ggx", {}),
+    ("beckmann", {}),
+    ("modified-phong", {}),
+    ("blinn-phong-approx", {}),
+)
+DEMO_METRIC = "log"
+DEMO_CHECKS = ("non-negative", "reciprocity", "energy")
+DEMO_SLICES_DEG = (0.0, 30.0, 60.0)
+
+
+def _demo_conversions(results: dict) -> list[dict]:
+    """Closed-form Phong / Blinn-Phong exponent -> GGX alpha (peak match) of the fitted lobes."""
+    from . import convert_phong as cp
+
+    out = []
+    if "modified-phong" in results:
+        n = float(np.asarray(results["modified-phong"].params["exponent"]))
+        nb = float(cp.phong_to_blinn_phong_exponent(n))
+        out.append({"model": "modified-phong", "exponent": n, "kind": "phong",
+                    "blinn_phong_exponent": nb,
+                    "ggx_alpha": float(cp.blinn_phong_to_ggx_alpha(nb)),
+                    "via": "phong_to_blinn_phong_exponent, blinn_phong_to_ggx_alpha"})
+    if "blinn-phong-approx" in results:
+        n = float(np.asarray(results["blinn-phong-approx"].params["exponent"]))
+        out.append({"model": "blinn-phong-approx", "exponent": n, "kind": "blinn-phong",
+                    "blinn_phong_exponent": n,
+                    "ggx_alpha": float(cp.blinn_phong_to_ggx_alpha(n)),
+                    "via": "blinn_phong_to_ggx_alpha"})
+    return out
+
+
+def _short_params(params: dict) -> str:
+    return ", ".join(f"{k}={_fmt(v)}" for k, v in params.items())
+
+
+def _demo_plots(data, ranked, out_dir) -> tuple[list[str], str | None]:
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        return [], "matplotlib is not installed: plots skipped (pip install matplotlib)"
+    from . import plot
+
+    models = [(r.model_name, r.model) for r in ranked]
+    files = []
+    truth = ", ".join(f"{k}={v}" for k, v in DEMO_RECIPE["params"].items())
+    figs = {
+        "demo_slices.png": plot.in_plane_slices(
+            data, models, DEMO_SLICES_DEG,
+            title=f"{DEMO_RECIPE['model']} ({truth}), 1% noise: measured vs fitted, in plane"),
+        "demo_residuals.png": plot.residuals(
+            data, models, title=f"log residuals per model (metric {DEMO_METRIC}); dashed: "
+                                "+-1 median sigma"),
+    }
+    for name, fig in figs.items():
+        path = out_dir / name
+        fig.savefig(path, dpi=110)
+        files.append(str(path))
+    return files, None
+
+
+def run_demo(out_dir, plots: bool = True, progress: bool = True) -> dict:
+    """The main job: synthesise, fit every model of :data:`DEMO_FITS`, rank, convert, check, write
+    ``demo.json`` (and plots) into ``out_dir``. Returns the JSON document."""
+    import pathlib
+    import time
+
+    _x64()
+    from data_synth.recipes import synthesize
+
+    from .checks import run_checks
+    from .fit import fit
+
+    t0 = time.perf_counter()
+
+    def note(msg):
+        if progress:
+            print(f"[demo {time.perf_counter() - t0:5.1f} s] {msg}", file=sys.stderr, flush=True)
+
+    out_dir = pathlib.Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    data = synthesize(DEMO_RECIPE)
+    note(f"synthesised {data.n} samples x {data.n_channels} channels "
+         f"({DEMO_RECIPE['plan']['name']} plan, seed {DEMO_RECIPE['seed']})")
+    results = {}
+    for k, (name, init) in enumerate(DEMO_FITS, 1):
+        r = fit(data, name, init=init, metric=DEMO_METRIC)
+        results[name] = r
+        note(f"fit {k}/{len(DEMO_FITS)} {name}: rms {r.residual_rms:.4g}, {r.steps} steps, "
+             f"{'converged' if r.converged else 'NOT converged'}, {r.seconds:.1f} s")
+    ranked = sorted(results.values(), key=lambda r: r.residual_rms)
+    best = ranked[0]
+    checks = run_checks(best.model, checks=list(DEMO_CHECKS), name=best.model_name,
+                        expected_failures=_registry().get(best.model_name).expected_failures)
+    best.checks = checks
+    note(f"checks on {best.model_name}: "
+         + ", ".join(f"{c.check} {c.status}" for c in checks))
+    files, plot_note = _demo_plots(data, ranked, out_dir) if plots else ([], "plots disabled")
+    if files:
+        note(f"plots: {', '.join(files)}")
+    doc = {
+        "recipe": DEMO_RECIPE,
+        "dataset": {"n_samples": data.n, "channels": list(data.channels),
+                    "plan": data.metadata["plan"], "noise": data.metadata["noise"]},
+        "truth": {"model": DEMO_RECIPE["model"],
+                  "params": {k: np.asarray(v).tolist()
+                             for k, v in _registry().get(DEMO_RECIPE["model"]).defaults().items()
+                             } | DEMO_RECIPE["params"]},
+        "metric": DEMO_METRIC,
+        "residual_units": "sigma" if data.sigma is not None else "metric",
+        "ranking": [r.model_name for r in ranked],
+        "best": best.model_name,
+        "fits": [r.to_dict() for r in ranked],
+        "conversions": _demo_conversions(results),
+        "ggx_alpha": {n: float(np.asarray(results[n].params["alpha"]))
+                      for n in ("ggx-conductor", "ggx", "beckmann") if n in results},
+        "checks": [c.to_dict() for c in checks],
+        "plots": files,
+        "plot_note": plot_note,
+        "seconds": 0.0,
+    }
+    doc["seconds"] = round(time.perf_counter() - t0, 2)
+    path = out_dir / "demo.json"
+    doc["output"] = str(path)
+    path.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+    return doc
+
+
+def _print_demo(doc: dict) -> None:
+    ds = doc["dataset"]
+    truth = doc["truth"]
+    print(f"Synthetic gonioreflectometer data: {truth['model']} "
+          f"({_short_params(truth['params'])}), {ds['plan']['name']} plan, {ds['n_samples']} "
+          f"samples x {len(ds['channels'])} channels, 1% lognormal noise, seed "
+          f"{doc['recipe']['seed']}")
+    unit = " [sigma]" if doc["residual_units"] == "sigma" else ""
+    print(f"\nModels ranked by residual rms ({doc['metric']} metric{unit}; ~1 = at the noise):")
+    w = max(len(f["model"]) for f in doc["fits"])
+    print(f"  {'#':>2} {'model':<{w}} {'rms':>10} {'conv':>5} {'steps':>5} {'time':>7}  "
+          "parameters")
+    for k, f in enumerate(doc["fits"], 1):
+        print(f"  {k:>2} {f['model']:<{w}} {f['residual_rms']:10.4g} "
+              f"{'yes' if f['converged'] else 'NO':>5} {f['steps']:>5} {f['seconds']:6.2f}s  "
+              f"{_short_params(f['params'])}")
+    print("\nGGX width alpha: truth " + _fmt(truth["params"]["alpha"]) + "; fitted "
+          + ", ".join(f"{k} {v:.4g}" for k, v in doc["ggx_alpha"].items()))
+    for c in doc["conversions"]:
+        kind = "Phong" if c["kind"] == "phong" else "Blinn-Phong"
+        via = (f" -> Blinn-Phong n = {c['blinn_phong_exponent']:.4g}"
+               if c["kind"] == "phong" else "")
+        print(f"  {c['model']}: {kind} n = {c['exponent']:.4g}{via} -> GGX alpha = "
+              f"{c['ggx_alpha']:.4g} (closed form, peak match: convert_phong.{c['via']})")
+    print(f"\nChecks on the best model ({doc['best']}):")
+    for c in doc["checks"]:
+        stat = "-" if c["statistic"] is None else f"{c['statistic']:.4g}"
+        thr = "-" if c["threshold"] is None else f"{c['threshold']:.4g}"
+        print(f"  {c['check']:<14} statistic {stat:>11}  threshold {thr:>11}  {c['status']}")
+    print()
+    if doc["plot_note"]:
+        print(f"note: {doc['plot_note']}")
+    for p in doc["plots"]:
+        print(f"wrote {p}")
+    print(f"wrote {doc['output']} ({doc['seconds']:.1f} s in all)")
+
+
+def cmd_demo(args) -> int:
+    """The main job on an embedded default (no input): synthesise -> fit -> rank -> convert ->
+    check -> plots, written into ``--out``."""
+    doc = run_demo(args.out, plots=not args.no_plots, progress=not args.quiet)
+    if args.json:
+        print(json.dumps(doc, indent=2))
+    else:
+        _print_demo(doc)
+    return 0 if all(c["status"] != "FAIL" for c in doc["checks"]) else 1
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -257,27 +596,80 @@ def build_parser() -> argparse.ArgumentParser:
                    help="check in float32 (default: float64; tolerances scale with epsilon)")
     c.set_defaults(func=cmd_check)
 
+    y = sub.add_parser("synth", help="synthesise a dataset from a recipe (.json/.toml)")
+    y.add_argument("recipe", help="recipe file (see data_synth.recipes)")
+    y.add_argument("-o", "--output", required=True, metavar="FILE",
+                   help="output data file: .csv or .npz (+ .json sidecar)")
+    y.add_argument("--json", action="store_true", help="machine-readable summary")
+    y.set_defaults(func=cmd_synth)
+
+    f = sub.add_parser("fit", help="fit a registry model to measured data")
+    f.add_argument("data", help="data file: .csv, .npz (or its .json sidecar), MERL .binary")
+    f.add_argument("--model", required=True, help="registry name (see 'brdf-fit models')")
+    f.add_argument("--fix", action="append", metavar="NAME=VALUE",
+                   help="hold a parameter at a value (comma-separated for channels); repeatable")
+    f.add_argument("--init", action="append", metavar="NAME=VALUE",
+                   help="start value of a parameter (default: the registry default); repeatable")
+    f.add_argument("--metric", default="log", help="log (default), cuberoot, relative, absolute")
+    f.add_argument("--solver", default="lm",
+                   help="lm (default), levenberg-marquardt, gauss-newton, gauss-newton-plain, "
+                        "dogleg")
+    f.add_argument("--max-zenith-deg", type=float, default=None,
+                   help="drop samples with either direction beyond this zenith angle")
+    f.add_argument("--cos-weight", action="store_true", help="weight residuals by cos(theta_i)")
+    f.add_argument("--multistart", type=int, default=1, metavar="K",
+                   help="K starts (the first from --init, the others perturbed); best loss wins")
+    f.add_argument("--seed", type=int, default=0, help="seed of multistart and --max-samples")
+    f.add_argument("--max-steps", type=int, default=256)
+    f.add_argument("--max-samples", type=int, default=None, metavar="N",
+                   help="fit a seeded random subset of N samples (e.g. of a MERL file)")
+    f.add_argument("--check", action="append", metavar="NAME",
+                   help="run this check on the fitted model (repeatable)")
+    f.add_argument("--json", action="store_true", help="print FitResult.to_dict()")
+    f.set_defaults(func=cmd_fit)
+
     d = sub.add_parser("demo", help="the main job on an embedded default (no input needed)")
-    d.add_argument("--json", action="store_true")
+    d.add_argument("--out", default="brdf_fit_demo", metavar="DIR",
+                   help="output folder for demo.json and plots (default: ./brdf_fit_demo)")
+    d.add_argument("--json", action="store_true", help="print demo.json")
+    d.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    d.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     d.set_defaults(func=cmd_demo)
     return p
 
 
+def _user_errors() -> tuple[type[BaseException], ...]:
+    """Exception classes that mean a user error (one line, exit 2). Looked up among the modules
+    already imported, so the CLI imports nothing for them: an exception of a module that was
+    never imported cannot have been raised."""
+    errors: list[type[BaseException]] = [CLIError]
+    for module, names in (("brdf_fit._validate", ("ParameterError",)),
+                          ("brdf_fit.fit", ("FitError",)),
+                          ("brdf_fit.data", ("DataError",)),
+                          ("data_synth.recipes", ("RecipeError",)),
+                          ("data_synth.plans", ("PlanError",)),
+                          ("data_synth.noise", ("NoiseError",))):
+        mod = sys.modules.get(module)
+        errors.extend(getattr(mod, n) for n in names if mod is not None and hasattr(mod, n))
+    return tuple(errors)
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    from ._validate import ParameterError
-
     try:
         return int(args.func(args) or 0)
-    except (CLIError, ParameterError) as exc:
-        print(f"brdf-fit: error: {exc}", file=sys.stderr)
-        return 2
     except KeyError as exc:  # unknown model (registry.UnknownModelError)
         print(f"brdf-fit: error: {exc}", file=sys.stderr)
         return 2
     except BrokenPipeError:  # output piped into `head` and closed early: not an error
         sys.stderr.close()
         return 0
+    except Exception as exc:
+        if isinstance(exc, _user_errors()):
+            msg = " ".join(str(exc).split("\n"))
+            print(f"brdf-fit: error: {msg}", file=sys.stderr)
+            return 2
+        raise
 
 
 if __name__ == "__main__":

@@ -1,0 +1,172 @@
+"""Plots of measured data against fitted models (matplotlib, an optional extra).
+
+Every function returns a :class:`matplotlib.figure.Figure` built without ``pyplot`` (no global
+figure state, no GUI backend, never shown): save it with ``fig.savefig(path)``. matplotlib is
+imported inside the functions, so ``import brdf_fit.plot`` works without it; calling a function
+without matplotlib raises ``ImportError``.
+
+``models`` arguments are sequences of ``(label, model)`` pairs, ``model`` anything with
+``eval(wi, wo)`` (a registry model, e.g. ``FitResult.model``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from .data import GonioData
+
+__all__ = ["in_plane_slices", "residuals", "in_plane_samples"]
+
+#: Tolerance on angles (degrees) when picking the in-plane samples out of a scattered dataset.
+ANGLE_TOL_DEG = 0.5
+
+
+def _figure(width: float, height: float):
+    from matplotlib.figure import Figure  # lazy: matplotlib is optional
+
+    return Figure(figsize=(width, height), layout="constrained")
+
+
+def _channel(data: GonioData, channel) -> int:
+    if channel is None:
+        return 1 if data.n_channels == 3 else 0
+    if isinstance(channel, str):
+        if channel not in data.channels:
+            raise ValueError(f"unknown channel {channel!r}; channels: {list(data.channels)}")
+        return data.channels.index(channel)
+    return int(channel)
+
+
+def _eval(model, wi, wo) -> np.ndarray:
+    """``model.eval`` as one jitted call (eager evaluation compiles every operation apart)."""
+    import jax
+    import jax.numpy as jnp
+
+    v = np.asarray(jax.jit(lambda a, b: model.eval(a, b))(jnp.asarray(wi), jnp.asarray(wo)),
+                   dtype=float)
+    return v[:, None] if v.ndim == 1 else v
+
+
+def in_plane_samples(data: GonioData, theta_i_deg: float, phi_i_deg: float = 0.0):
+    """The samples of ``data`` in the plane of incidence at ``theta_i_deg`` (azimuth
+    ``phi_i_deg``): ``(signed theta_o in degrees, index)``, sorted; positive ``theta_o`` on the
+    specular side (``phi_o = phi_i + 180``), negative on the source side."""
+    a = data.angles_deg()
+
+    def near(x, y):
+        return np.abs((x - y + 180.0) % 360.0 - 180.0) < ANGLE_TOL_DEG
+
+    at_ti = np.abs(a["theta_i"] - theta_i_deg) < ANGLE_TOL_DEG
+    if theta_i_deg > ANGLE_TOL_DEG:
+        at_ti &= near(a["phi_i"], phi_i_deg)
+    pole = a["theta_o"] < ANGLE_TOL_DEG
+    fwd = near(a["phi_o"], phi_i_deg + 180.0) & ~pole
+    back = near(a["phi_o"], phi_i_deg) & ~pole
+    idx_f = np.flatnonzero(at_ti & fwd)
+    idx_b = np.flatnonzero(at_ti & back)
+    idx_p = np.flatnonzero(at_ti & pole)[:1]  # the pole is one state, maybe measured repeatedly
+    theta = np.concatenate([a["theta_o"][idx_f], -a["theta_o"][idx_b], np.zeros(idx_p.size)])
+    idx = np.concatenate([idx_f, idx_b, idx_p])
+    order = np.argsort(theta, kind="stable")
+    return theta[order], idx[order]
+
+
+def _sweep(theta_i_deg: float, theta_o_deg: np.ndarray, phi_i_deg: float = 0.0):
+    ti, pi_ = math.radians(theta_i_deg), math.radians(phi_i_deg)
+    to = np.radians(np.abs(theta_o_deg))
+    po = np.where(theta_o_deg >= 0, pi_ + math.pi, pi_)
+    wi = np.broadcast_to([math.sin(ti) * math.cos(pi_), math.sin(ti) * math.sin(pi_),
+                          math.cos(ti)], (theta_o_deg.size, 3))
+    wo = np.stack([np.sin(to) * np.cos(po), np.sin(to) * np.sin(po), np.cos(to)], -1)
+    return np.ascontiguousarray(wi), wo
+
+
+def in_plane_slices(
+    data: GonioData,
+    models: Sequence[tuple[str, object]],
+    theta_i_deg: Sequence[float] = (0.0, 30.0, 60.0),
+    channel=None,
+    phi_i_deg: float = 0.0,
+    n_curve: int = 361,
+    title: str | None = None,
+):
+    """Measured BRDF (points) against each model (curves) in the plane of incidence, one panel
+    per incidence angle, log scale; ``channel`` is a name or an index (default: G of RGB data,
+    else the first)."""
+    c = _channel(data, channel)
+    fig = _figure(4.0 * len(theta_i_deg), 3.6)
+    axes = fig.subplots(1, len(theta_i_deg), squeeze=False)[0]
+    sweep = np.linspace(-89.0, 89.0, n_curve)
+    pairs = [_sweep(ti, sweep, phi_i_deg) for ti in theta_i_deg]
+    wi_all = np.concatenate([p[0] for p in pairs])
+    wo_all = np.concatenate([p[1] for p in pairs])
+    curves = []
+    for _, model in models:  # one evaluation per model over every panel's sweep
+        f = _eval(model, wi_all, wo_all)
+        curves.append(f[:, min(c, f.shape[1] - 1)].reshape(len(theta_i_deg), n_curve))
+    for k, (ax, ti) in enumerate(zip(axes, theta_i_deg, strict=True)):
+        th, idx = in_plane_samples(data, ti, phi_i_deg)
+        v = data.value[idx, c]
+        pos = v > 0
+        ax.semilogy(th[pos], v[pos], "o", color="k", ms=4, label="measured", zorder=5)
+        for j, (label, _) in enumerate(models):
+            f = curves[j][k]
+            ok = f > 0
+            # the first model (the best, in a ranked list) drawn wider, so it shows beneath
+            ax.semilogy(sweep[ok], f[ok], "-", lw=2.6 if j == 0 else 1.2, label=label)
+        if pos.any():  # keep the axis on the measurements, not on a model's far tail
+            ax.set_ylim(v[pos].min() / 10.0, v[pos].max() * 3.0)
+        ax.axvline(ti, color="0.7", lw=0.8, ls=":")
+        ax.set_xlabel("signed theta_o [deg] (+: specular side)")
+        ax.set_title(f"theta_i = {ti:g} deg")
+        ax.set_xlim(-90, 90)
+    axes[0].set_ylabel(f"f_r [1/sr], channel {data.channels[c]}")
+    axes[-1].legend(fontsize=7, loc="lower center")
+    if title:
+        fig.suptitle(title)
+    return fig
+
+
+def residuals(data: GonioData, models: Sequence[tuple[str, object]], title: str | None = None):
+    """Per-sample log residuals ``ln(model/measured)`` against the half-vector angle, one panel
+    per model, every channel; dashed lines at +-1 median relative sigma when the data have
+    uncertainties."""
+    h = data.wi + data.wo
+    h = h / np.linalg.norm(h, axis=-1, keepdims=True)
+    th = np.degrees(np.arctan2(np.hypot(h[:, 0], h[:, 1]), h[:, 2]))
+    used = data.weight > 0
+    n = len(models)
+    cols = min(n, 3)
+    rows = math.ceil(n / cols)
+    fig = _figure(4.0 * cols, 3.0 * rows)
+    axes = fig.subplots(rows, cols, squeeze=False).ravel()
+    rel_sigma = None
+    if data.sigma is not None:
+        good = used & (data.value > 0)
+        if good.any():
+            rel_sigma = float(np.median(data.sigma[good] / data.value[good]))
+    colours = ["tab:red", "tab:green", "tab:blue"] if data.n_channels == 3 else None
+    for k, (ax, (label, model)) in enumerate(zip(axes, models, strict=False)):
+        m = np.broadcast_to(_eval(model, data.wi, data.wo), data.value.shape)
+        for c in range(data.n_channels):
+            ok = used[:, c] & (data.value[:, c] > 0) & (m[:, c] > 0)
+            r = np.log(m[ok, c] / data.value[ok, c])
+            ax.plot(th[ok], r, ".", ms=2, alpha=0.6,
+                    color=None if colours is None else colours[c], label=data.channels[c])
+        ax.axhline(0.0, color="k", lw=0.8)
+        if rel_sigma is not None:
+            for s in (-rel_sigma, rel_sigma):
+                ax.axhline(s, color="0.5", lw=0.8, ls="--")
+        ax.set_title(label, fontsize=9)
+        ax.set_xlabel("theta_h [deg]")
+        if k % cols == 0:
+            ax.set_ylabel("ln(model / measured)")
+    for ax in axes[n:]:
+        ax.set_visible(False)
+    axes[0].legend(fontsize=7, markerscale=3)
+    if title:
+        fig.suptitle(title)
+    return fig
