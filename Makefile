@@ -29,6 +29,8 @@ lint: $(STAMP)
 
 bench: $(STAMP)         ## re-run the committed benchmarks (results in benchmarks/results/)
 	$(BIN)/python benchmarks/bench_eval.py
+	$(BIN)/python benchmarks/bench_albedo_quadrature.py
+	$(BIN)/python benchmarks/bench_phong_normaliser.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache
