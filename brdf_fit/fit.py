@@ -18,9 +18,15 @@ With per-sample ``sigma`` the residual is divided by the metric's first-order st
 ``g'(f) sigma``; otherwise it is multiplied by ``sqrt(weight)``. ``cos_weight`` multiplies by
 ``cos(theta_i)``; ``max_zenith_deg`` drops samples beyond that zenith (either direction).
 
-Standard errors come from the Jacobian at the optimum: ``cov = s^2 (J^T J)^-1`` with
-``s^2 = RSS/(m - p)`` (the reduced residual variance, as ``scipy.optimize.curve_fit`` does by
-default), propagated to the physical parameters.
+Standard errors come from the Jacobian ``J`` of the residuals with respect to the physical
+parameters at the optimum (:func:`covariance`). With per-sample ``sigma`` the residuals are
+standardised and ``cov = s^2 (J^T J)^-1``, ``s^2 = RSS/(m - p)`` (the reduced residual variance,
+as ``scipy.optimize.curve_fit`` does by default). Without ``sigma`` the residuals' variance is not
+constant (1% multiplicative noise gives a log-metric residual of ~1% at the peak and ~0 in the dark
+tails), and a pooled ``s^2`` made 3-sigma intervals cover the truth in only 57-82% of 200 trials
+(measured for ggx, beckmann, modified-phong); there the heteroscedasticity-consistent sandwich
+``cov = m/(m - p) (J^T J)^-1 J^T diag(r^2) J (J^T J)^-1`` is used (HC1: H. White, Econometrica
+48(4), 1980; J. G. MacKinnon and H. White, J. Econometrics 29, 1985).
 
 The optimisation itself (:func:`solve`) is pure JAX: it runs under ``jit`` and ``vmap`` and is
 differentiable with respect to the data through optimistix's implicit adjoint.
@@ -41,7 +47,7 @@ import optimistix as optx
 
 from .data import GonioData
 
-__all__ = ["FitResult", "fit", "solve", "METRICS", "SOLVERS", "Transform", "FitError"]
+__all__ = ["FitResult", "fit", "solve", "covariance", "METRICS", "SOLVERS", "Transform", "FitError"]
 
 METRICS = ("log", "cuberoot", "relative", "absolute")
 
@@ -238,6 +244,21 @@ class FitResult:
         }
 
 
+def covariance(J, r, m_eff, sandwich: bool):
+    """Parameter covariance from the residual Jacobian ``J`` (m, p) and residuals ``r`` (m,) at
+    the optimum, ``m_eff`` samples that carry weight (see the module docstring): ``sandwich=False``
+    ``s^2 (J^T J)^+`` with ``s^2 = RSS/(m_eff - p)``; ``sandwich=True`` the HC1 estimator
+    ``m_eff/(m_eff - p) (J^T J)^+ (J^T diag(r^2) J) (J^T J)^+``. NumPy or JAX arrays (jit/vmap)."""
+    xp = jnp if isinstance(J, jax.Array) or isinstance(r, jax.Array) else np
+    p = J.shape[-1]
+    dof = max(int(m_eff) - p, 1) if isinstance(m_eff, int) else xp.maximum(m_eff - p, 1)
+    bread = xp.linalg.pinv(J.T @ J)
+    if not sandwich:
+        return xp.sum(r * r) / dof * bread
+    Jr = J * r[:, None]
+    return (m_eff / dof) * (bread @ (Jr.T @ Jr) @ bread)
+
+
 def _arrays(data: GonioData, max_zenith_deg, dtype):
     keep = np.ones(data.n, bool)
     if max_zenith_deg is not None:
@@ -351,9 +372,8 @@ def fit(
     stderr = {}
     if p:
         J = np.asarray(jax.jit(jax.jacfwd(resid_phys))(flat_phys))
-        s2 = float(np.sum(r**2)) / max(m_eff - p, 1)
         try:
-            cov = s2 * np.linalg.pinv(J.T @ J)
+            cov = covariance(J, r, m_eff, sandwich=arrays[4] is None)
             se = np.sqrt(np.maximum(np.diag(cov), 0.0))
         except np.linalg.LinAlgError:
             se = np.full(p, np.nan)
