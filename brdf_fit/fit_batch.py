@@ -1,0 +1,575 @@
+"""Batch fitting: B independent problems sharing one registry model and one sample count.
+
+    res = fit_batch(wi, wo, values, "ggx")       # wi, wo: (B, M, 3); values: (B, M, C)
+
+The residual of problem ``b`` is exactly :meth:`brdf_fit.fit._Problem.residuals` (same metric,
+weights, sigma, ``cos_weight``, relative floor, parameter transforms) as :func:`brdf_fit.fit.fit`
+builds it for that problem alone, so the two agree at the optimum.
+
+**The straggler problem.** Under ``vmap`` a ``while_loop`` runs until its slowest member stops:
+members that have converged are masked, but still computed. In 10,000 GGX fits the median
+problem needs ~15 steps and the slowest hundreds (an ``f0`` channel running to its bound of 1),
+so one vmapped solve pays ``B x max(steps)`` instead of ``sum(steps)``. Here the solve is run
+in *chunks* of ``chunk_steps`` iterations; after each chunk the converged problems are kept and
+only the stragglers are gathered into a compact batch, padded up to a bucket size from a fixed
+ladder (``16 * 4**k``, so at most a handful of shapes is ever compiled), and solved on from
+where they stopped. ``benchmarks/bench_fit_batch.py`` measures this against one plain vmapped
+solve.
+
+**Solvers.** ``solver="batch-lm"`` (the default) is the Levenberg-Marquardt method written here
+for batches: Marquardt scaling by the running maximum of ``diag(J^T J)`` (as MINPACK), the
+damping update of H. B. Nielsen ("Damping parameter in Marquardt's method", IMM-REP-1999-05,
+DTU, 1999: ``lam *= max(1/3, 1 - (2 rho - 1)^3)`` on success, ``lam *= nu; nu *= 2`` on failure),
+the residual and Jacobian from one forward-mode pass, the normal equations (``p x p``)
+solved by Cholesky, and no step longer than ``STEP_MAX`` = 2 in the unconstrained space
+(without that cap a first step from the registry default drove a logistic parameter far past
+its bound, onto a plateau of zero gradient: 7-18% of 300 problems ended worse than scipy's
+``least_squares``, measured; with it none, and the mean step count fell from ~26 to ~11). Its
+whole state (``u``, ``lam``, ``nu``, the scaling) is carried across chunks, so chunking and
+compaction do not change a single iterate. It stops when an accepted step satisfies
+optimistix's Cauchy test, ``max|du / (atol + rtol |u|)| < 1`` and
+``|d loss| < atol + rtol * loss``; or when the damping has grown past ``LAM_MAX`` (every step
+rejected at machine precision), counted as converged only if the residual is orthogonal to the
+Jacobian columns (cosine < 10 sqrt(eps), MINPACK's gtol test).
+
+Any name in :data:`brdf_fit.fit.SOLVERS` (``"lm"``, ...) runs that optimistix solver through
+:func:`brdf_fit.fit.solve`, the solver of :func:`fit`; optimistix keeps its state inside one
+solve, so there each chunk restarts the solver from the last iterate (the damping restarts; the
+optimum is the same). Measured on this 2-core CPU, one optimistix LM step cost ~4x a batch-lm
+step (it linearises and evaluates the residual separately and solves by QR).
+
+**Sharding.** With ``shard=True`` (opt-in, default off while the problems below are open) the batch
+axis is laid out over a 1-D :class:`jax.sharding.Mesh` of ``jax.devices()`` with
+``NamedSharding(mesh, P("batch"))`` and each chunk runs under ``jax.shard_map``: every device
+iterates its own shard with its own ``while_loop``, so a device stops when *its* members are
+done, not when the slowest member anywhere is. Batches are padded to a multiple of the device
+count (padding lanes repeat a real problem and are dropped).
+
+Known problem (unresolved): with ``XLA_FLAGS=--xla_force_host_platform_device_count=2`` on the
+2-core development VM, batches of 2,000 and 10,000 problems hung (every thread waiting on a
+futex), whether the chunk ran under ``shard_map`` or as a plain ``jit`` on sharded inputs;
+5 and 256 problems ran (see ``benchmarks/results/fit_batch.md``), but at 256 problems the
+sharded results differed from the unsharded ones (max |f0| difference 0.96, unexplained; at 5
+problems they agree to 1e-8). Until both are understood sharding is opt-in.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, NamedSharding
+from jax.sharding import PartitionSpec as P
+
+from .fit import (
+    METRICS,
+    RELATIVE_FLOOR,
+    SOLVERS,
+    FitError,
+    _metric,
+    _Problem,
+    _transform,
+    covariance,
+    solve,
+)
+
+__all__ = ["BatchFitResult", "fit_batch", "BATCH_SOLVERS"]
+
+BATCH_SOLVERS = ("batch-lm", *SOLVERS)
+#: Initial damping of batch-lm relative to max(diag(J^T J)) (Madsen, Nielsen & Tingleff,
+#: "Methods for non-linear least squares problems", DTU 2004, section 3.2: 1e-6 for a good start,
+#: 1e-3 otherwise; registry defaults are not good starts).
+LM_TAU = 1e-3
+#: Floor of the Marquardt scaling diag(J^T J), relative to its largest entry: a parameter whose
+#: column vanishes (f0 at its logistic bound) must still be damped, not divided by zero.
+SCALE_FLOOR = 1e-12
+#: Marquardt's scaling of the damping by diag(J^T J) (running maximum, as MINPACK) or none.
+MARQUARDT_SCALING = True
+#: Growth of the damping factor nu after each rejected step (Nielsen: 2).
+NU_GROWTH = 2.0
+#: Damping beyond LAM_MAX * max(diag(J^T J)): every step is rejected at machine precision; stop
+#: (not converged).
+LAM_MAX = 1e16
+#: Longest step of batch-lm in the unconstrained space (see _lm_chunk).
+STEP_MAX = 2.0
+#: Smallest straggler bucket; buckets grow by BUCKET_GROWTH (16, 64, 256, ...).
+MIN_BUCKET = 16
+BUCKET_GROWTH = 4
+
+
+@dataclasses.dataclass
+class BatchFitResult:
+    """Outcome of :func:`fit_batch`; every array has a leading batch axis ``B``."""
+
+    model_name: str
+    params: dict[str, np.ndarray]  # (B, ...) per registry parameter (fixed ones included)
+    stderr: dict[str, np.ndarray]  # (B, ...) per free parameter
+    converged: np.ndarray  # (B,) bool
+    steps: np.ndarray  # (B,) int: solver iterations (summed over chunks)
+    loss: np.ndarray  # (B,) 0.5 * sum of squared residuals (as FitResult.loss)
+    residual_rms: np.ndarray  # (B,)
+    n_samples: np.ndarray  # (B,) samples used (weight > 0 in some channel)
+    n_params: int
+    metric: str
+    solver: str
+    seconds: float
+    rounds: list = dataclasses.field(default_factory=list)  # per chunk: lanes, active, seconds
+    n_devices: int = 1
+
+    @property
+    def batch_size(self) -> int:
+        return int(self.converged.shape[0])
+
+    def lane_steps(self) -> int:
+        """Solver iterations paid for (lanes x steps summed over chunks, padding included)."""
+        return int(sum(r["lanes"] * r["steps"] for r in self.rounds))
+
+    def to_dict(self) -> dict:
+        return {
+            "model": self.model_name,
+            "params": {k: np.asarray(v).tolist() for k, v in self.params.items()},
+            "stderr": {k: np.asarray(v).tolist() for k, v in self.stderr.items()},
+            "converged": self.converged.tolist(),
+            "steps": self.steps.tolist(),
+            "loss": self.loss.tolist(),
+            "residual_rms": self.residual_rms.tolist(),
+            "n_samples": self.n_samples.tolist(),
+            "n_params": self.n_params,
+            "metric": self.metric,
+            "solver": self.solver,
+            "seconds": round(self.seconds, 4),
+            "rounds": self.rounds,
+            "n_devices": self.n_devices,
+        }
+
+
+# ----------------------------------------------------------------------------- batch-lm
+
+
+def _resid_and_jac(problem, u, arrays, fixed):
+    prob = dataclasses.replace(problem, fixed=fixed)
+
+    def f(v):
+        r = prob.residuals(v, arrays)
+        return r, r
+
+    J, r = jax.jacfwd(f, has_aux=True)(u)
+    return r, J
+
+
+def _lm_state0(u, dtype):
+    p = u.shape[0]
+    return {
+        "u": u,
+        "lam": jnp.asarray(-1.0, dtype),  # < 0: not initialised (set from J at the first step)
+        "nu": jnp.asarray(2.0, dtype),
+        "scale": jnp.zeros(p, dtype),
+        "steps": jnp.asarray(0, jnp.int32),
+        "done": jnp.asarray(False),
+        "ok": jnp.asarray(False),
+    }
+
+
+def _lm_chunk(problem, rtol, atol, max_steps, n_steps, state, arrays, fixed):
+    """``n_steps`` batch-lm iterations on a batch (leading axis on every leaf): one while_loop
+    over the batch that stops as soon as all members are done."""
+    dtype = state["u"].dtype
+
+    def quad(u, a, fx):
+        # only the p x p normal-equation quantities are carried: the (M C, p) Jacobian itself
+        # never enters the loop state (copying it every step made the loop memory-bound)
+        r, J = _resid_and_jac(problem, u, a, fx)
+        return 0.5 * jnp.sum(r * r), J.T @ J, J.T @ r
+
+    q0 = jax.vmap(quad)(state["u"], arrays, fixed)
+
+    def one(s, q, a, fx):
+        active = ~s["done"] & (s["steps"] < max_steps)
+        cost, A, g = q
+        d = jnp.diagonal(A)
+        if MARQUARDT_SCALING:
+            scale = jnp.maximum(s["scale"], d)
+            scale = jnp.maximum(scale, SCALE_FLOOR * jnp.max(scale))
+        else:
+            scale = jnp.ones_like(d)
+        lam = jnp.where(s["lam"] < 0, LM_TAU * jnp.max(d) / jnp.max(scale), s["lam"])
+        M = A + jnp.diag(lam * scale)
+        L = jnp.linalg.cholesky(M)
+        du = -jax.scipy.linalg.cho_solve((L, True), g)
+        du = jnp.where(jnp.all(jnp.isfinite(du)), du, jnp.zeros_like(du))
+        # safeguard: no step longer than STEP_MAX in the unconstrained space (a logistic
+        # parameter pushed far past its bound lands on a plateau with zero gradient)
+        du = du * jnp.minimum(1.0, STEP_MAX / jnp.maximum(jnp.sqrt(jnp.sum(du * du)), 1e-300))
+        u_new = s["u"] + du
+        q_new = quad(u_new, a, fx)
+        cost_new = q_new[0]
+        pred = -jnp.dot(g, du) - 0.5 * jnp.dot(du, A @ du)
+        actual = cost - cost_new
+        rho = jnp.where(pred > 0, actual / jnp.where(pred > 0, pred, 1.0), -1.0)
+        accept = jnp.isfinite(cost_new) & (actual >= 0) & (rho > 0)
+        small_step = jnp.max(jnp.abs(du) / (atol + rtol * jnp.abs(s["u"]))) < 1.0
+        small_df = jnp.abs(actual) < atol + rtol * cost
+        conv = (accept & small_step & small_df) | (cost == 0)
+        stuck = ~accept & (lam * s["nu"] > LAM_MAX * jnp.max(d))
+        # stuck at machine precision: a minimum if the residual is orthogonal to the Jacobian
+        # columns (MINPACK's gtol test, cosine below 10 sqrt(eps))
+        cosine = jnp.abs(g) / jnp.maximum(jnp.sqrt(d * 2.0 * cost), 1e-300)
+        conv = conv | (stuck & (jnp.max(cosine) < 10.0 * jnp.sqrt(jnp.finfo(dtype).eps)))
+        fac = jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+        new = {
+            "u": jnp.where(accept, u_new, s["u"]),
+            "lam": jnp.where(accept, lam * fac, lam * s["nu"]),
+            "nu": jnp.where(accept, jnp.asarray(2.0, dtype), NU_GROWTH * s["nu"]),
+            "scale": scale,
+            "steps": s["steps"] + 1,
+            "done": conv | stuck,
+            "ok": conv,
+        }
+        keep = accept & active
+        q_out = jax.tree.map(lambda n, o: jnp.where(keep, n, o), q_new, q)
+        out = jax.tree.map(lambda n, o: jnp.where(active, n, o), new, s)
+        return out, q_out
+
+    one_b = jax.vmap(one)
+
+    def cond(c):
+        k, s, _ = c
+        return (k < n_steps) & jnp.any(~s["done"] & (s["steps"] < max_steps))
+
+    def body(c):
+        k, s, q = c
+        s, q = one_b(s, q, arrays, fixed)
+        return k + 1, s, q
+
+    _, state, _ = jax.lax.while_loop(cond, body, (jnp.asarray(0), state, q0))
+    return state
+
+
+def _optx_chunk(problem, solver, rtol, atol, max_steps, n_steps, state, arrays, fixed):
+    """``n_steps`` of an optimistix solver (:func:`brdf_fit.fit.solve`), restarted from the
+    current iterate (optimistix does not expose its state between solves)."""
+
+    def one(s, a, fx):
+        prob = dataclasses.replace(problem, fixed=fx)
+        u, ok, k = solve(prob, s["u"], a, solver, rtol, atol, n_steps)
+        active = ~s["done"] & (s["steps"] < max_steps)
+        new = {**s, "u": u, "steps": s["steps"] + k.astype(jnp.int32), "done": ok, "ok": ok}
+        return jax.tree.map(lambda n, o: jnp.where(active, n, o), new, s)
+
+    return jax.vmap(one)(state, arrays, fixed)
+
+
+# ----------------------------------------------------------------------------- finalisation
+
+
+def _finalise_one(problem, u, arrays, fixed):
+    prob = dataclasses.replace(problem, fixed=fixed)
+    phys = prob.unflatten(u)
+    free = prob.free
+    flat = jnp.concatenate([jnp.ravel(phys[n]) for n in free]) if free else jnp.zeros(0, u.dtype)
+
+    def resid_phys(x):  # as fit(): residuals as a function of the free physical parameters
+        out, k = {}, 0
+        for name, shape in zip(free, prob.shapes, strict=True):
+            size = int(np.prod(shape)) if shape else 1
+            out[name] = x[k:k + size].reshape(shape)
+            k += size
+        model_ = prob.entry.build(**{**fixed, **out})
+        wi, wo, f, w, sigma, floor = arrays
+        m = model_.eval(wi, wo)
+        m = jnp.broadcast_to(m if m.ndim == 2 else m[:, None], f.shape)
+        r = _metric(prob.metric, m, f, wi[:, 2:3], sigma, w, floor)
+        return (r * wi[:, 2:3] if prob.cos_weight else r).reshape(-1)
+
+    r_u = prob.residuals(u, arrays)
+    loss = 0.5 * jnp.sum(r_u * r_u)
+    r = resid_phys(flat)
+    rms = jnp.sqrt(jnp.mean(r * r))
+    w = arrays[3]
+    m_eff = jnp.sum(w.reshape(-1) > 0)
+    p = flat.shape[0]
+    if p:
+        J = jax.jacfwd(resid_phys)(flat)
+        # fit()'s estimator: pooled s^2 with sigma, HC1 sandwich without
+        cov = covariance(J, r, m_eff.astype(u.dtype), sandwich=arrays[4] is None)
+        se = jnp.sqrt(jnp.maximum(jnp.diagonal(cov), 0.0))
+    else:
+        se = jnp.zeros(0, u.dtype)
+    return phys, se, loss, rms, jnp.sum(jnp.any(w > 0, axis=-1))
+
+
+# ----------------------------------------------------------------------------- driver
+
+
+def _bucket(n: int, ndev: int) -> int:
+    b = MIN_BUCKET
+    while b < n:
+        b *= BUCKET_GROWTH
+    return int(math.ceil(b / ndev) * ndev)
+
+
+class _Runner:
+    """Jitted (optionally shard_mapped) chunk and finalise functions, cached per shape."""
+
+    def __init__(self, problem, solver, rtol, atol, max_steps, shard):
+        self.devices = jax.devices() if shard else jax.devices()[:1]
+        self.ndev = len(self.devices)
+        self.mesh = Mesh(np.asarray(self.devices), ("batch",)) if self.ndev > 1 else None
+        if solver == "batch-lm":
+            def chunk(n_steps, s, a, fx):
+                return _lm_chunk(problem, rtol, atol, max_steps, n_steps, s, a, fx)
+        else:
+            def chunk(n_steps, s, a, fx):
+                return _optx_chunk(problem, solver, rtol, atol, max_steps, n_steps, s, a, fx)
+
+        def fin(u, a, fx):
+            return jax.vmap(lambda uu, aa, ff: _finalise_one(problem, uu, aa, ff))(u, a, fx)
+
+        self._chunk = {}
+        self._raw_chunk = chunk
+        if self.mesh is not None:
+            spec = P("batch")
+            self._fin = jax.jit(jax.shard_map(fin, mesh=self.mesh, in_specs=spec,
+                                              out_specs=spec, check_vma=False))
+        else:
+            self._fin = jax.jit(fin)
+
+    def chunk(self, n_steps):
+        fn = self._chunk.get(n_steps)
+        if fn is None:
+            body = lambda s, a, fx: self._raw_chunk(n_steps, s, a, fx)
+            if self.mesh is not None:
+                spec = P("batch")
+                body = jax.shard_map(body, mesh=self.mesh, in_specs=spec, out_specs=spec,
+                                     check_vma=False)
+            fn = self._chunk[n_steps] = jax.jit(body)
+        return fn
+
+    def put(self, tree):
+        if self.mesh is None:
+            return jax.tree.map(jnp.asarray, tree)
+        sh = NamedSharding(self.mesh, P("batch"))
+        return jax.tree.map(lambda x: jax.device_put(x, sh), tree)
+
+    def finalise(self, u, arrays, fixed):
+        return self._fin(u, arrays, fixed)
+
+
+_RUNNERS: dict = {}
+#: Runners (and so their compiled chunks) kept for reuse by later calls with the same static
+#: problem; the oldest is dropped beyond this many.
+MAX_RUNNERS = 8
+
+
+def _runner(problem, solver, rtol, atol, max_steps, shard):
+    key = (problem.entry.name, problem.free, problem.shapes, problem.transforms, problem.metric,
+           problem.cos_weight, solver, float(rtol), float(atol), int(max_steps), shard,
+           len(jax.devices()))
+    r = _RUNNERS.get(key)
+    if r is None:
+        if len(_RUNNERS) >= MAX_RUNNERS:
+            _RUNNERS.pop(next(iter(_RUNNERS)))
+        r = _RUNNERS[key] = _Runner(problem, solver, rtol, atol, max_steps, shard)
+    return r
+
+
+def _take(tree, idx):
+    return jax.tree.map(lambda x: x[idx], tree)
+
+
+def _batched_values(entry, spec, B, C, what):
+    """Per-problem values (B, ...) of registry parameters from a dict of shared or per-problem
+    values (a channel parameter: scalar or (C,) shared, (B, C) per problem; a scalar
+    parameter: scalar shared, (B,) per problem)."""
+    out = {}
+    for name, v in spec.items():
+        p = entry.param(name)
+        a = np.asarray(v, float)
+        per = (a.ndim == 2) if p.channels else (a.ndim == 1)
+        if per:
+            if a.shape[0] != B:
+                raise FitError(f"{what}[{name!r}] has {a.shape[0]} rows for {B} problems")
+            if p.channels and a.shape[1] != C:
+                a = np.repeat(a.mean(axis=1, keepdims=True), C, axis=1)
+        else:
+            if p.channels:
+                a = np.full(C, float(a)) if a.ndim == 0 else a
+                if a.shape[0] != C:
+                    a = np.full(C, float(np.mean(a)))
+            a = np.broadcast_to(a, (B, *a.shape))
+        for row in (a[0], a[-1]):
+            p.validate(row, entry.name)
+        out[name] = np.ascontiguousarray(a)
+    return out
+
+
+def fit_batch(
+    wi,
+    wo,
+    values,
+    model: str,
+    weight=None,
+    sigma=None,
+    fix: dict | None = None,
+    init: dict | None = None,
+    metric: str = "log",
+    solver: str = "batch-lm",
+    cos_weight: bool = False,
+    max_zenith_deg: float | None = None,
+    max_steps: int = 256,
+    rtol: float = 1e-10,
+    atol: float = 1e-10,
+    chunk_steps: int | None = 32,
+    shard: bool | None = None,
+    dtype: Any = None,
+) -> BatchFitResult:
+    """Fit registry model ``model`` to B datasets at once.
+
+    ``wi``, ``wo``: (B, M, 3); ``values``, ``weight``, ``sigma``: (B, M, C) (or (B, M)).
+    ``fix`` / ``init``: parameter values shared by all problems or per problem (leading axis
+    B; see :func:`_batched_values`). ``max_zenith_deg`` masks samples (weight 0) instead of
+    dropping them, so the sample count stays M. ``chunk_steps``: iterations per chunk before
+    the stragglers are compacted (None: one chunk of ``max_steps``, i.e. a plain vmapped
+    solve). ``shard``: lay the batch over all ``jax.devices()`` (default False: see the known
+    problems in the module docstring). ``dtype``: of the arrays and the solve (default: JAX's
+    default float).
+    """
+    from . import registry
+
+    t0 = time.perf_counter()
+    entry = registry.get(model)
+    if metric not in METRICS:
+        raise FitError(f"unknown metric {metric!r}; valid metrics: {', '.join(METRICS)}")
+    if solver not in BATCH_SOLVERS:
+        raise FitError(f"unknown solver {solver!r}; valid solvers: {', '.join(BATCH_SOLVERS)}")
+    dtype = jnp.zeros(()).dtype if dtype is None else jnp.dtype(dtype)
+    wi = np.asarray(wi, float)
+    wo = np.asarray(wo, float)
+    f = np.asarray(values, float)
+    if f.ndim == 2:
+        f = f[..., None]
+    if wi.ndim != 3 or wi.shape[-1] != 3 or wo.shape != wi.shape or f.shape[:2] != wi.shape[:2]:
+        raise FitError(f"expected wi, wo (B, M, 3) and values (B, M, C); got {wi.shape}, "
+                       f"{wo.shape}, {f.shape}")
+    B, M, C = f.shape
+    w = np.ones_like(f) if weight is None else np.broadcast_to(
+        np.asarray(weight, float).reshape(f.shape[:2] + (-1,)), f.shape).copy()
+    sg = None if sigma is None else np.broadcast_to(
+        np.asarray(sigma, float).reshape(f.shape[:2] + (-1,)), f.shape).copy()
+    if max_zenith_deg is not None:
+        cz = math.cos(math.radians(max_zenith_deg))
+        keep = (wi[..., 2] >= cz) & (wo[..., 2] >= cz)
+        w = np.where(keep[..., None], w, 0.0)
+    if not np.all(np.isfinite(f)) or np.any(w < 0):
+        raise FitError("values must be finite and weights non-negative")
+    floor = RELATIVE_FLOOR * np.maximum(np.max(np.abs(f), axis=(1, 2)), 1e-300)
+    fix = dict(fix or {})
+    init = dict(init or {})
+    for k in (*fix, *init):
+        entry.param(k)
+    defaults = entry.defaults()
+    start = _batched_values(entry, {p.name: init.get(p.name, defaults[p.name])
+                                    for p in entry.params if p.name not in fix}, B, C, "init")
+    fixed = _batched_values(entry, fix, B, C, "fix")
+    free = tuple(n for n in entry.param_names if n in start)
+    problem = _Problem(
+        entry=entry,
+        free=free,
+        shapes=tuple(start[n].shape[1:] for n in free),
+        transforms=tuple(_transform(entry.param(n)) for n in free),
+        fixed={},
+        metric=metric,
+        cos_weight=cos_weight,
+    )
+    u0 = (np.concatenate([tr.inverse(start[n]).reshape(B, -1)
+                          for n, tr in zip(free, problem.transforms, strict=True)], axis=1)
+          if free else np.zeros((B, 0)))
+    arrays = (wi, wo, f, w, sg, floor)
+    arrays = tuple(None if a is None else a.astype(dtype) for a in arrays)
+    fixed = {k: v.astype(dtype) for k, v in fixed.items()}
+
+    if shard is None:
+        shard = False  # opt-in: sharded runs hung / disagreed on large batches (module docstring)
+    runner = _runner(problem, solver, rtol, atol, max_steps, bool(shard))
+    ndev = runner.ndev
+    p = u0.shape[1]
+    state = {
+        "u": u0.astype(dtype),
+        "lam": np.full(B, -1.0, dtype),
+        "nu": np.full(B, 2.0, dtype),
+        "scale": np.zeros((B, p), dtype),
+        "steps": np.zeros(B, np.int32),
+        "done": np.zeros(B, bool),
+        "ok": np.zeros(B, bool),
+    }
+    chunk = max_steps if chunk_steps is None else max(1, min(int(chunk_steps), max_steps))
+    rounds = []
+    idx = np.arange(B)
+    first = True
+    while True:
+        active = idx[~state["done"][idx] & (state["steps"][idx] < max_steps)]
+        if active.size == 0:
+            break
+        n = active.size
+        full = int(math.ceil(B / ndev) * ndev)
+        lanes = full if first else min(_bucket(n, ndev), full)
+        pad = np.concatenate([active, np.full(lanes - n, active[0])])
+        n_steps = chunk
+        if solver != "batch-lm":  # restarted solves: never run past a member's budget
+            n_steps = int(min(chunk, max_steps - state["steps"][active].max()))
+            n_steps = max(n_steps, 1)
+        ts = time.perf_counter()
+        before = state["steps"][active].copy()
+        sub = runner.put(_take(state, pad))
+        sub_a = runner.put(tuple(None if a is None else a[pad] for a in arrays))
+        sub_f = runner.put({k: v[pad] for k, v in fixed.items()})
+        out = jax.tree.map(np.asarray, runner.chunk(n_steps)(sub, sub_a, sub_f))
+        for k in state:
+            state[k][active] = out[k][:n]
+        # iterations this chunk's while_loop ran (its slowest lane), paid by every lane
+        rounds.append({"lanes": int(lanes), "active": int(n),
+                       "steps": int(np.max(state["steps"][active] - before)),
+                       "seconds": round(time.perf_counter() - ts, 4)})
+        first = False
+        if chunk_steps is None:
+            break
+    ts = time.perf_counter()
+    lanes = int(math.ceil(B / ndev) * ndev)
+    pad = np.concatenate([idx, np.zeros(lanes - B, int)])
+    phys, se, loss, rms, nused = runner.finalise(
+        runner.put(state["u"][pad]), runner.put(tuple(None if a is None else a[pad]
+                                                      for a in arrays)),
+        runner.put({k: v[pad] for k, v in fixed.items()}))
+    phys, se, loss, rms, nused = jax.tree.map(lambda x: np.asarray(x)[:B],
+                                             (phys, se, loss, rms, nused))
+    stderr, k = {}, 0
+    for name, shape in zip(free, problem.shapes, strict=True):
+        size = int(np.prod(shape)) if shape else 1
+        stderr[name] = se[:, k:k + size].reshape((B, *shape))
+        k += size
+    params = {name: (np.asarray(phys[name]) if name in phys else fixed[name])
+              for name in entry.param_names}
+    params = {name: np.broadcast_to(v, (B, *np.shape(v)[1:])) for name, v in params.items()}
+    rounds.append({"lanes": lanes, "active": B, "steps": 0, "finalise": True,
+                   "seconds": round(time.perf_counter() - ts, 4)})
+    return BatchFitResult(
+        model_name=entry.name,
+        params=params,
+        stderr=stderr,
+        converged=state["ok"].astype(bool),
+        steps=state["steps"].astype(int),
+        loss=loss,
+        residual_rms=rms,
+        n_samples=nused.astype(int),
+        n_params=p,
+        metric=metric,
+        solver=solver,
+        seconds=time.perf_counter() - t0,
+        rounds=rounds,
+        n_devices=ndev,
+    )
