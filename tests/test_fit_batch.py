@@ -47,7 +47,8 @@ def single(wi, wo, v, b, **kw):
     return fit(GonioData(wi=wi[b], wo=wo[b], value=v[b], channels=("R", "G", "B")), "ggx", **kw)
 
 
-@pytest.mark.parametrize("noise", [0.0, 0.02], ids=["noise-free", "noisy"])
+@pytest.mark.parametrize(
+    "noise", [0.0, pytest.param(0.02, marks=pytest.mark.slow)], ids=["noise-free", "noisy"])
 def test_batch_equals_single_fits(noise):
     wi, wo, v = batch(TRUTHS, noise=noise, seed=1)
     r = fit_batch(wi, wo, v, "ggx", chunk_steps=8)  # small chunks: compaction is exercised
@@ -67,6 +68,7 @@ def test_batch_equals_single_fits(noise):
             np.testing.assert_allclose(r.params["alpha"][b], TRUTHS[b][0], rtol=1e-7)
 
 
+@pytest.mark.slow  # the optimistix path is fit()'s solve, tested in test_fit.py
 def test_optimistix_solver_in_chunks_matches_fit():
     """solver="lm": fit()'s optimistix solver, restarted at chunk boundaries."""
     wi, wo, v = batch(TRUTHS[:2], noise=0.01, seed=2)
