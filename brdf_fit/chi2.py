@@ -763,6 +763,11 @@ def _lobe_exponent(model):
     if hint is None:
         return None
     kind, value = hint()
+    if kind == "half" and isinstance(value, (tuple, list)):
+        try:  # anisotropic half-vector lobe: the grid is isotropic, use the narrower width
+            value = min(float(np.asarray(w)) for w in value)
+        except (TypeError, ValueError, jax.errors.ConcretizationTypeError):
+            return None
     try:
         v = float(np.asarray(value))
     except (TypeError, ValueError, jax.errors.ConcretizationTypeError):

@@ -724,7 +724,7 @@ def lobe_rule(
     with: the rule a lobe asks for through its ``quadrature_lobe()`` method (``("mirror", n)``:
     :func:`mirror_lobe_rule` for power-cosine lobes about the mirror direction, the Phong family;
     ``("half", width)``: :func:`halfvector_rule` at that width, e.g. Blinn-Phong's equivalent
-    Beckmann width ``sqrt(2/(n+2))``), :func:`halfvector_rule` at the lobe's widths for a
+    Beckmann width ``sqrt(2/(n+2))``; ``("half", (width_x, width_y))`` for anisotropic lobes), :func:`halfvector_rule` at the lobe's widths for a
     microfacet lobe, a small
     :func:`cosine_rule` (exact) for Lambert, the ``generic`` Gauss-Legendre x trapezoid product
     rule otherwise. Batched ``wo`` gives a batched rule for microfacet lobes only.
@@ -739,7 +739,8 @@ def lobe_rule(
             return mirror_lobe_rule(wo, value, dtype=dtype)
         if kind == "half":
             n_theta = GAUSSIAN_N_THETA if n_theta is None else n_theta
-            return halfvector_rule(wo, value, n_theta=n_theta, n_phi=n_phi, dtype=dtype)
+            ax, ay = value if isinstance(value, (tuple, list)) else (value, None)
+            return halfvector_rule(wo, ax, ay, n_theta=n_theta, n_phi=n_phi, dtype=dtype)
         raise ValueError(f"{type(lobe).__name__}.quadrature_lobe() returned unknown kind {kind!r}")
     if isinstance(lobe, MicrofacetBRDF):
         widths = lobe_widths(lobe)

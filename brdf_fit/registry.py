@@ -84,6 +84,13 @@ class Entry:
     #: check name -> reason, for checks this model is not meant to pass (shown, never hidden)
     expected_failures: dict[str, str] = field(default_factory=dict)
     tags: tuple[str, ...] = ()
+    #: publication year of the model (the catalogue table's "year" column)
+    year: int | None = None
+    #: the row of the Montes & Urena (2012) overview table this entry implements (None: not a row,
+    #: e.g. a variant); several entries may implement one row (the catalogue shows each)
+    catalogue: str | None = None
+    #: how ``sample`` draws directions, in a few words ("exact half-vector", "cosine fallback")
+    sampler: str = ""
 
     @property
     def param_names(self) -> tuple[str, ...]:
@@ -120,6 +127,9 @@ class Entry:
             "description": self.description,
             "reference": self.reference,
             "tags": list(self.tags),
+            "year": self.year,
+            "catalogue": self.catalogue,
+            "sampler": self.sampler,
             "params": [
                 {
                     "name": p.name,
@@ -393,11 +403,22 @@ register(Entry(
 ))
 
 
+#: modules of brdf_fit.models that build their own entries (``registry_entries()``), in the order
+#: ``brdf-fit models`` lists them
+FAMILY_MODULES = (
+    "phong", "phong_normalized", "lewis", "minnaert", "oren_nayar", "ward", "lafortune",
+    "ashikhmin_shirley", "schlick1994", "strauss", "cook_torrance_1982", "torrance_sparrow",
+    "kelemen", "neumann", "granier_heidrich", "htsg", "beard_maxwell", "hanrahan_krueger",
+    "poulin_fournier",
+)
+
+
 def _register_families():
     """The model families that build their own entries (kept next to their models)."""
-    from .models import phong, phong_normalized
+    import importlib
 
-    for module in (phong, phong_normalized):
+    for mod in FAMILY_MODULES:
+        module = importlib.import_module(f".models.{mod}", __package__)
         for entry in module.registry_entries():
             register(entry)
 
