@@ -28,6 +28,7 @@ Epsilons (each named, each with its reason):
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 
 SQRT_EPS = 1e-30
@@ -43,12 +44,30 @@ def safe_sqrt(x, eps: float = SQRT_EPS):
     return jnp.where(ok, jnp.sqrt(xs), 0.0)
 
 
+@jax.custom_jvp
 def safe_hypot(x, y):
     """``sqrt(x^2 + y^2)`` without overflow/underflow of the squares (``jnp.hypot``), with a finite
-    gradient (bounded by 1 in each argument; 0 at the origin)."""
+    gradient (bounded by 1 in each argument; 0 at the origin).
+
+    The derivative is defined directly as ``(x/h, y/h)``: JAX's own ``hypot`` differentiates
+    through ``min/max`` ratios and forms ``y/x^2``, which overflows float32 for components below
+    ~1e-19 and gave NaN at (1e-30, 0) (found by the Oren-Nayar hard cases)."""
     ok = (x != 0) | (y != 0)
     xs = jnp.where(ok, x, 1.0)
     return jnp.where(ok, jnp.hypot(xs, y), 0.0)
+
+
+@safe_hypot.defjvp
+def _safe_hypot_jvp(primals, tangents):
+    x, y = primals
+    dx, dy = tangents
+    h = safe_hypot(x, y)
+    ok = h > 0
+    hs = jnp.where(ok, h, 1.0)
+    # x/h and y/h are ratios of numbers of the same magnitude: no under/overflow
+    cx = jnp.where(ok, x / hs, 0.0)
+    cy = jnp.where(ok, y / hs, 0.0)
+    return h, cx * dx + cy * dy
 
 
 def safe_rsqrt(x, eps: float = SQRT_EPS):
