@@ -194,9 +194,11 @@ def _unit(cos, phi=0.3):
 
 
 def _views(model, cosines) -> list[np.ndarray]:
-    """View directions: each cosine at one azimuth, and at three for anisotropic lobes."""
+    """View directions: each cosine at one azimuth, and at three for anisotropic lobes (a
+    microfacet lobe with ``alpha_y``, or any lobe whose class sets ``anisotropic = True``)."""
     aniso = any(getattr(m.distribution, "alpha_y", None) is not None
                 for m in _microfacet_lobes(model))
+    aniso = aniso or any(bool(getattr(lobe, "anisotropic", False)) for _, lobe in _lobes(model))
     phis = (0.3, 0.3 + math.pi / 4, 0.3 + math.pi / 2) if aniso else (0.3,)
     return [_unit(c, p) for c in cosines for p in phis]
 
@@ -499,20 +501,54 @@ def hard_values(param, hard=None) -> tuple[float, ...]:
     return tuple(vals)
 
 
-def hard_case_params(entry) -> dict[str, np.ndarray]:
-    """Product of the hard values of the entry's parameters (defaults elsewhere), stacked."""
+#: How close to an open interval end (relative to the interval's scale) the edge values go.
+EDGE_OPEN_REL = 1e-4
+#: An unbounded parameter is tested at ``EDGE_UNBOUNDED_FACTOR`` times its default (or at that
+#: value when the default is 0).
+EDGE_UNBOUNDED_FACTOR = 1e3
+
+
+def edge_values(param) -> tuple[float, ...]:
+    """The ends of a parameter's valid interval: closed finite ends as they are, open ends
+    approached to :data:`EDGE_OPEN_REL` of the scale, unbounded ends at
+    :data:`EDGE_UNBOUNDED_FACTOR` times the default. For parameters :data:`HARD_PARAMS` does not
+    name (the catalogue's ``sigma``, ``nu``, ``tau``, lobe coefficients, ...)."""
+    d = np.asarray(param.default_value(), float)
+    dmax = float(np.max(np.abs(d))) if d.size else 1.0
+    scale = (param.hi - param.lo) if (param.lo is not None and param.hi is not None) else \
+        max(dmax, 1.0)
+    vals = []
+    if param.lo is not None:
+        vals.append(param.lo + EDGE_OPEN_REL * scale if param.lo_open else param.lo)
+    else:
+        vals.append(-EDGE_UNBOUNDED_FACTOR * max(dmax, 1.0))
+    if param.hi is not None:
+        vals.append(param.hi - EDGE_OPEN_REL * scale if param.hi_open else param.hi)
+    else:
+        vals.append(EDGE_UNBOUNDED_FACTOR * (dmax if dmax > 0 else 1.0))
+    return tuple(dict.fromkeys(float(v) for v in vals))
+
+
+def hard_case_params(entry, hard=None) -> dict[str, np.ndarray]:
+    """Parameter sets of the hard-case grid, stacked: the product of the hard values of the
+    parameters :data:`HARD_PARAMS` (or ``hard``) names, then each other parameter at each of its
+    :func:`edge_values` with the rest at their defaults (one at a time: a product over every
+    parameter of a nine-parameter model would be thousands of sets)."""
+    hard = HARD_PARAMS if hard is None else hard
     d = entry.defaults()
-    names = [n for n in entry.param_names if n in HARD_PARAMS]
-    combos = list(itertools.product(*[hard_values(entry.param(n)) for n in names])) or [()]
+    names = [n for n in entry.param_names if n in hard]
+    combos = list(itertools.product(*[hard_values(entry.param(n), hard[n]) for n in names])) or [()]
+    sets = [{n: c[names.index(n)] if n in names else d[n] for n in entry.param_names}
+            for c in combos]
+    for n in entry.param_names:
+        if n in names:
+            continue
+        for v in edge_values(entry.param(n)):
+            sets.append({**{m: d[m] for m in entry.param_names}, n: v})
     grid = {}
     for name in entry.param_names:
-        if name in names:
-            vals = np.array([c[names.index(name)] for c in combos], float)
-            if d[name].ndim == 1:
-                vals = np.repeat(vals[:, None], d[name].shape[0], axis=1)
-        else:
-            vals = np.repeat(d[name][None], len(combos), axis=0)
-        grid[name] = vals
+        rows = [np.broadcast_to(np.asarray(s[name], float), d[name].shape) for s in sets]
+        grid[name] = np.stack(rows) if rows else np.zeros((0, *d[name].shape))
     return grid
 
 

@@ -4,8 +4,9 @@ Grid (issue "Foundation", Done means): cos(theta) in {1e-7, 1e-4, 1e-2, 0.5, 1} 
 directions, in generic position, with wi == wo, wi == mirror(wo), and both directions grazing at
 opposite azimuths (the half vector vanishes in the limit; exactly on the horizon it does vanish);
 alpha in {1e-4, 1e-3, 0.05, 0.5, 1}, k in {0, 1, 100}, eta in {1, 1.5, 1/1.5}; Blinn-Phong
-exponents up to 1e6. Gradients are taken with respect to both directions and every parameter, in
-float64 and in float32.
+exponents up to 1e6; every other parameter (the catalogue's sigma, nu, tau, lobe coefficients,
+...) at the ends of its interval, one at a time. Gradients are taken with respect to both
+directions and every parameter, in float64 and in float32.
 """
 
 import itertools
@@ -17,7 +18,7 @@ import numpy as np
 import pytest
 
 from brdf_fit import registry
-from brdf_fit.checks import hard_values
+from brdf_fit.checks import hard_case_params
 
 COS = [1e-7, 1e-4, 1e-2, 0.5, 1.0]
 HARD = {
@@ -67,23 +68,10 @@ WI, WO = direction_pairs()
 
 
 def param_grid(entry):
-    """Product of the hard values of the entry's parameters (defaults for the others)."""
-    d = entry.defaults()
-    names = [n for n in entry.param_names if n in HARD]
-    # each parameter's hard values inside its valid interval (plus a finite upper bound)
-    combos = list(itertools.product(
-        *[hard_values(entry.param(n), HARD[n]) for n in names])) or [()]
-    grid = {}
-    for name in entry.param_names:
-        if name in names:
-            j = names.index(name)
-            vals = np.array([c[j] for c in combos], float)
-            if d[name].ndim == 1:  # channel parameter: same value in every channel
-                vals = np.repeat(vals[:, None], d[name].shape[0], axis=1)
-        else:
-            vals = np.repeat(d[name][None], len(combos), axis=0)
-        grid[name] = vals
-    return grid, len(combos)
+    """The named hard values (product) plus every other parameter at its interval ends, one at a
+    time (:func:`brdf_fit.checks.hard_case_params`)."""
+    grid = hard_case_params(entry, HARD)
+    return grid, next(iter(grid.values())).shape[0] if grid else 1
 
 
 def _check_finite(tree, what):
