@@ -85,6 +85,21 @@ def cmd_models(args) -> int:
     return 0
 
 
+def cmd_catalogue(args) -> int:
+    from . import catalogue
+
+    records = catalogue.table()
+    if args.write_readme:
+        changed = catalogue.update_readme(args.write_readme, catalogue.markdown(records))
+        print(f"{args.write_readme}: catalogue section {'updated' if changed else 'unchanged'}")
+        return 0
+    if args.json:
+        print(json.dumps({"summary": catalogue.summary(records), "rows": records}, indent=2))
+        return 0
+    print(catalogue.markdown(records), end="")
+    return 0
+
+
 def _in_plane(theta_i_deg, theta_o_deg, phi_i_deg=0.0):
     """Direction pairs in the plane of incidence, specular geometry phi_o = phi_i + 180 deg."""
     ti, to = np.meshgrid(np.radians(theta_i_deg), np.radians(theta_o_deg), indexing="ij")
@@ -614,6 +629,13 @@ def build_parser() -> argparse.ArgumentParser:
     m = sub.add_parser("models", help="list the registered models and their parameters")
     m.add_argument("--json", action="store_true", help="machine-readable output")
     m.set_defaults(func=cmd_models)
+
+    k = sub.add_parser("catalogue", help="the Montes & Urena (2012) catalogue: which models are "
+                                         "implemented, their checks, samplers and costs")
+    k.add_argument("--json", action="store_true", help="machine-readable rows")
+    k.add_argument("--write-readme", metavar="README", default=None,
+                   help="rewrite the generated catalogue section of this file")
+    k.set_defaults(func=cmd_catalogue)
 
     e = sub.add_parser("eval", help="evaluate a model in the plane of incidence")
     e.add_argument("model")

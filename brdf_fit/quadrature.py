@@ -724,8 +724,8 @@ def lobe_rule(
     with: the rule a lobe asks for through its ``quadrature_lobe()`` method (``("mirror", n)``:
     :func:`mirror_lobe_rule` for power-cosine lobes about the mirror direction, the Phong family;
     ``("half", width)``: :func:`halfvector_rule` at that width, e.g. Blinn-Phong's equivalent
-    Beckmann width ``sqrt(2/(n+2))``; ``("half", (width_x, width_y))`` for anisotropic lobes), :func:`halfvector_rule` at the lobe's widths for a
-    microfacet lobe, a small
+    Beckmann width ``sqrt(2/(n+2))``; ``("half", (width_x, width_y))`` for anisotropic
+    lobes), :func:`halfvector_rule` at the lobe's widths for a microfacet lobe, a small
     :func:`cosine_rule` (exact) for Lambert, the ``generic`` Gauss-Legendre x trapezoid product
     rule otherwise. Batched ``wo`` gives a batched rule for microfacet lobes only.
     ``n_theta=None``: 48 (:data:`HALFVECTOR_N_THETA`), 64 (:data:`GAUSSIAN_N_THETA`) for Beckmann

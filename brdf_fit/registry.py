@@ -226,6 +226,9 @@ def _mf(dist, masking, fresnel):
 
 register(Entry(
     name="lambert",
+    year=1760,
+    catalogue="Lambert",
+    sampler="exact cosine",
     builder=lambda rho: Lambert(rho=rho),
     params=(_unit("rho", (0.8, 0.6, 0.4), "diffuse albedo"),),
     reference="J. H. Lambert, Photometria, 1760",
@@ -235,6 +238,9 @@ register(Entry(
 
 register(Entry(
     name="mirror",
+    year=None,
+    catalogue=None,
+    sampler="exact (delta)",
     builder=lambda f0: Mirror(fresnel=SchlickFresnel(f0=f0)),
     params=(_unit("f0", (1.0, 1.0, 1.0), "normal-incidence reflectance (Schlick)"),),
     reference="law of reflection; Schlick 1994 for F",
@@ -245,6 +251,9 @@ register(Entry(
 
 register(Entry(
     name="cook-torrance",
+    year=1982,
+    catalogue="Cook-Torrance",
+    sampler="exact V-cavity visible normals",
     builder=lambda alpha, eta: _mf(Beckmann(alpha), VCavity(), DielectricFresnel(eta)),
     params=(_alpha(doc="Beckmann RMS slope m"), _eta()),
     reference=(
@@ -258,6 +267,9 @@ register(Entry(
 
 register(Entry(
     name="torrance-sparrow",
+    year=1967,
+    catalogue="Torrance-Sparrow",
+    sampler="cosine + V-cavity visible normals (mixture)",
     builder=lambda kd, ks, alpha, eta: Mixture(lobes=(
         Lambert(rho=kd),
         Scaled(lobe=_mf(Beckmann(alpha), VCavity(), DielectricFresnel(eta)), scale=ks),
@@ -278,6 +290,9 @@ register(Entry(
 
 register(Entry(
     name="beckmann",
+    year=2007,
+    catalogue=None,
+    sampler="exact visible normals",
     builder=lambda alpha, f0: _mf(Beckmann(alpha), SmithHeightCorrelated(), SchlickFresnel(f0)),
     params=(_alpha(), _unit("f0", (0.04, 0.04, 0.04), "normal-incidence reflectance")),
     reference=f"{_WALTER} (D eq. 25); {_HEITZ} (height-correlated G2 eq. 99); {_SCHLICK}",
@@ -286,6 +301,9 @@ register(Entry(
 
 register(Entry(
     name="beckmann-walter",
+    year=2007,
+    catalogue=None,
+    sampler="exact visible normals",
     builder=lambda alpha, f0: _mf(
         Beckmann(alpha, lambda_approx="walter"), SmithSeparable(), SchlickFresnel(f0)
     ),
@@ -303,6 +321,9 @@ register(Entry(
 
 register(Entry(
     name="ggx",
+    year=2007,
+    catalogue=None,
+    sampler="exact visible normals",
     builder=lambda alpha, f0: _mf(GGX(alpha), SmithHeightCorrelated(), SchlickFresnel(f0)),
     params=(_alpha(), _unit("f0", (0.04, 0.04, 0.04), "normal-incidence reflectance")),
     reference=f"{_TR}; {_WALTER} (eq. 33); {_HEITZ} (eq. 99); {_SCHLICK}",
@@ -312,6 +333,9 @@ register(Entry(
 
 register(Entry(
     name="ggx-separable",
+    year=2007,
+    catalogue=None,
+    sampler="exact visible normals",
     builder=lambda alpha, f0: _mf(GGX(alpha), SmithSeparable(), SchlickFresnel(f0)),
     params=(_alpha(), _unit("f0", (0.04, 0.04, 0.04), "normal-incidence reflectance")),
     reference=f"{_WALTER} (eqs. 23, 33, 34); {_SCHLICK}",
@@ -320,6 +344,9 @@ register(Entry(
 
 register(Entry(
     name="ggx-conductor",
+    year=2007,
+    catalogue=None,
+    sampler="exact visible normals",
     builder=lambda alpha, eta, k: _mf(GGX(alpha), SmithHeightCorrelated(),
                                       ConductorFresnel(eta, k)),
     params=(_alpha(), _ETA_AU, _K_AU),
@@ -330,6 +357,9 @@ register(Entry(
 
 register(Entry(
     name="ggx-aniso",
+    year=2007,
+    catalogue=None,
+    sampler="exact visible normals",
     builder=lambda alpha_x, alpha_y, f0: _mf(GGX(alpha_x, alpha_y), SmithHeightCorrelated(),
                                              SchlickFresnel(f0)),
     params=(_alpha("alpha_x", 0.1, "width along the tangent x"),
@@ -342,6 +372,9 @@ register(Entry(
 
 register(Entry(
     name="beckmann-aniso",
+    year=2007,
+    catalogue=None,
+    sampler="exact visible normals",
     builder=lambda alpha_x, alpha_y, f0: _mf(Beckmann(alpha_x, alpha_y), SmithHeightCorrelated(),
                                              SchlickFresnel(f0)),
     params=(_alpha("alpha_x", 0.1, "width along the tangent x"),
@@ -354,6 +387,9 @@ register(Entry(
 
 register(Entry(
     name="ggx-conductor-aniso",
+    year=2007,
+    catalogue=None,
+    sampler="exact visible normals",
     builder=lambda alpha_x, alpha_y, eta, k: _mf(GGX(alpha_x, alpha_y), SmithHeightCorrelated(),
                                                  ConductorFresnel(eta, k)),
     params=(_alpha("alpha_x", 0.1, "width along the tangent x"),
@@ -365,6 +401,9 @@ register(Entry(
 
 register(Entry(
     name="ggx-plastic",
+    year=2007,
+    catalogue=None,
+    sampler="cosine + visible normals (mixture)",
     builder=lambda rho_d, alpha, f0: Mixture(lobes=(
         Lambert(rho=rho_d),
         _mf(GGX(alpha), SmithHeightCorrelated(), SchlickFresnel(f0)),
@@ -379,6 +418,9 @@ register(Entry(
 
 register(Entry(
     name="blinn-phong-microfacet",
+    year=1977,
+    catalogue="Blinn-Phong",
+    sampler="exact NDF (half vector)",
     builder=lambda exponent, f0: _mf(BlinnPhongNDF(exponent), SmithHeightCorrelated(),
                                      SchlickFresnel(f0)),
     params=(Param("exponent", 50.0, lo=0.0, doc="Blinn-Phong exponent of the NDF"),

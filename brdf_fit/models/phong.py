@@ -456,6 +456,9 @@ def registry_entries():
     return [
         Entry(
             name="phong-original",
+            year=1975,
+            catalogue="Phong",
+            sampler="exact power-cosine lobe",
             builder=lambda rho_s, exponent: PhongOriginal(rho_s=rho_s, exponent=exponent),
             params=(unit("rho_s", (0.5, 0.5, 0.5), "specular reflectance"), expo(20.0)),
             reference=f"{_PHONG_1975}; as a BRDF with the 1/cos(theta_i): models.md 4.6",
@@ -469,6 +472,9 @@ def registry_entries():
         ),
         Entry(
             name="modified-phong",
+            year=1994,
+            catalogue="Phong",
+            sampler="cosine + power-cosine lobe (mixture)",
             builder=lambda rho_d, rho_s, exponent: ModifiedPhong(
                 rho_d=rho_d, rho_s=rho_s, exponent=exponent),
             params=(unit("rho_d", (0.3, 0.2, 0.1), "diffuse albedo"),
@@ -481,6 +487,9 @@ def registry_entries():
         ),
         Entry(
             name="modified-phong-fresnel",
+            year=1994,
+            catalogue="Phong",
+            sampler="cosine + power-cosine lobe (mixture)",
             builder=lambda rho_d, f0, exponent: ModifiedPhongFresnel(
                 rho_d=rho_d, f0=f0, exponent=exponent),
             params=(unit("rho_d", (0.3, 0.2, 0.1), "diffuse albedo"),
@@ -491,6 +500,9 @@ def registry_entries():
         ),
         Entry(
             name="blinn-phong",
+            year=1977,
+            catalogue="Blinn-Phong",
+            sampler="exact half-vector lobe",
             builder=lambda rho_s, exponent: BlinnPhong(rho_s=rho_s, exponent=exponent,
                                                        normalisation="ndf"),
             params=(unit("rho_s", (0.5, 0.5, 0.5), "specular scale"), expo(20.0)),
@@ -500,6 +512,9 @@ def registry_entries():
         ),
         Entry(
             name="blinn-phong-approx",
+            year=1977,
+            catalogue="Blinn-Phong",
+            sampler="exact half-vector lobe",
             builder=lambda rho_s, exponent: BlinnPhong(rho_s=rho_s, exponent=exponent,
                                                        normalisation="approx"),
             params=(unit("rho_s", (0.5, 0.5, 0.5), "specular scale"), expo(20.0)),

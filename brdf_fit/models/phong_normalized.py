@@ -125,6 +125,9 @@ def registry_entries():
     return [
         Entry(
             name="phong-energy-normalized",
+            year=2020,
+            catalogue="Phong",
+            sampler="power-cosine lobe (exact pdf)",
             builder=lambda rho_s, exponent: EnergyNormalizedPhong(rho_s=rho_s, exponent=exponent),
             params=(rho, Param("exponent", 50.0, lo=0.0, hi=1e6,
                                doc="Phong exponent n (real)")),
@@ -137,6 +140,9 @@ def registry_entries():
         ),
         Entry(
             name="phong-energy-normalized-arvo",
+            year=1995,
+            catalogue="Phong",
+            sampler="power-cosine lobe (exact pdf)",
             builder=lambda rho_s, exponent: EnergyNormalizedPhong(
                 rho_s=rho_s, exponent=exponent, method="arvo"),
             params=(rho, Param("exponent", 50.0, lo=0.0, hi=float(ARVO_MAX_N),
