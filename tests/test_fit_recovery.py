@@ -42,6 +42,11 @@ RTOL = 1e-6
 
 #: Parameters held fixed at the truth (not identifiable from eval), with the reason.
 HELD = {
+    "granier-heidrich": {
+        "d": "the layer thickness enters eval only through the per-channel constant kd D(eta, d) "
+             "(eta is fixed by the specular part): changing d and rescaling kd leaves eval "
+             "identical to 1e-13 (tests/test_granier_heidrich.py)",
+    },
     "phong-energy-normalized-arvo": {
         "exponent": "the Arvo path rounds the exponent to an integer (lobe and normaliser), so "
                     "eval is piecewise constant in it: zero gradient, no unique optimum",
@@ -166,6 +171,7 @@ COVERAGE = {
     "ggx": {"alpha": 0.23, "f0": 0.6},
     "beckmann": {"alpha": 0.31, "f0": 0.45},
     "modified-phong": {"rho_d": 0.2, "rho_s": 0.5, "exponent": 30.0},
+    "ward": {"rho_d": 0.2, "rho_s": 0.3, "alpha_x": 0.12, "alpha_y": 0.3},
 }
 
 

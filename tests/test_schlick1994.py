@@ -158,7 +158,8 @@ def test_registry_entry_and_checks():
     res = checks.run_checks("schlick-1994", checks=["reciprocity", "energy"])
     by = {r.check: r for r in res}
     assert by["reciprocity"].passed
-    assert not by["energy"].passed and by["energy"].statistic == pytest.approx(1.387, abs=2e-3)
+    # three view azimuths (anisotropic): 1.387 at 17 deg, 1.558 at 107 deg (the declared values)
+    assert not by["energy"].passed and by["energy"].statistic == pytest.approx(1.558, abs=2e-3)
 
 
 @pytest.mark.parametrize("r, p, cos_o", [
