@@ -13,7 +13,8 @@ unconstrained parameterisation (:class:`brdf_fit.fit.Transform`).
 
 Timed (float64, x64 on):
 
-``batch``         ``fit_batch`` (solver ``batch-lm``, chunks of 32 steps, stragglers compacted),
+``batch``         ``fit_batch`` (solver ``batch-lm``, the default chunk schedule
+                  ``CHUNK_SCHEDULE`` = 6, 3, 3, 4, 8, 16, 32 steps, stragglers compacted),
                   ``rtol = atol = 1e-8``; warm (second) call, the first call (with compilation)
                   reported separately.
 ``batch-f32``     the same in float32 (``dtype=float32``), tolerances 1e-5.
@@ -145,7 +146,7 @@ def batch_summary(r, dt_cold, dt_warm):
 def child(args):
     """Sharded run (this process was started with 2 host devices)."""
     wi, wo, v, _, _ = make_problems(args.problems, args.samples, args.seed)
-    kw = dict(rtol=1e-8, atol=1e-8, chunk_steps=32, shard=True)
+    kw = dict(rtol=1e-8, atol=1e-8, chunk_steps="auto", shard=True)
     r, dt_cold = run_batch(wi, wo, v, **kw)
     r, dt_warm = run_batch(wi, wo, v, **kw)
     out = batch_summary(r, dt_cold, dt_warm)
@@ -209,7 +210,7 @@ def main(argv=None) -> int:
            "scipy_subset": sub.size}
 
     print("batch float64 ...", flush=True)
-    kw = dict(rtol=1e-8, atol=1e-8, chunk_steps=32)
+    kw = dict(rtol=1e-8, atol=1e-8, chunk_steps="auto")
     r, dt_cold = run_batch(wi, wo, v, **kw)
     r, dt_warm = run_batch(wi, wo, v, **kw)
     res["batch"] = batch_summary(r, dt_cold, dt_warm)
@@ -247,14 +248,14 @@ def main(argv=None) -> int:
     vs = np.arange(min(args.vmap_subset, B))
     vk = dict(rtol=1e-8, atol=1e-8)
     out = {}
-    for name, cs in (("chunked", 32), ("vmap", None)):
+    for name, cs in (("chunked", "auto"), ("chunked-32", 32), ("vmap", None)):
         rr, _ = run_batch(wi[vs], wo[vs], v[vs], chunk_steps=cs, **vk)
         rr, dtw = run_batch(wi[vs], wo[vs], v[vs], chunk_steps=cs, **vk)
         out[name] = {"seconds_warm": dtw, "lane_steps": rr.lane_steps(),
                      "sum_steps": int(rr.steps.sum()), "max_steps": int(rr.steps.max()),
                      "converged": float(rr.converged.mean()), "loss": rr.loss}
     out["max_abs_loss_diff"] = float(np.max(np.abs(out["chunked"]["loss"] - out["vmap"]["loss"])))
-    for name in ("chunked", "vmap"):
+    for name in ("chunked", "chunked-32", "vmap"):
         out[name].pop("loss")
     out["ratio_vmap_over_chunked"] = out["vmap"]["seconds_warm"] / out["chunked"]["seconds_warm"]
     out["problems"] = int(vs.size)
@@ -263,7 +264,7 @@ def main(argv=None) -> int:
     if not args.no_f32:
         print("batch float32 ...", flush=True)
         try:
-            k32 = dict(rtol=1e-5, atol=1e-5, chunk_steps=32, dtype=jnp.float32)
+            k32 = dict(rtol=1e-5, atol=1e-5, chunk_steps="auto", dtype=jnp.float32)
             r32, c32 = run_batch(wi, wo, v, **k32)
             r32, w32 = run_batch(wi, wo, v, **k32)
             res["batch-f32"] = batch_summary(r32, c32, w32)
@@ -390,7 +391,7 @@ def write_markdown(path, command, info, res):
           f"On the first {vv['problems']} problems (warm calls):", "",
           "| variant | seconds | lane-steps paid | sum of steps | slowest member | converged |",
           "|---|---:|---:|---:|---:|---:|"]
-    for name in ("vmap", "chunked"):
+    for name in ("vmap", "chunked-32", "chunked"):
         d = vv[name]
         L.append(f"| {name} | {d['seconds_warm']:.2f} | {d['lane_steps']} | {d['sum_steps']} |"
                  f" {d['max_steps']} | {100 * d['converged']:.2f}% |")
