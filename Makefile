@@ -31,6 +31,8 @@ bench: $(STAMP)         ## re-run the committed benchmarks (results in benchmark
 	$(BIN)/python benchmarks/bench_eval.py
 	$(BIN)/python benchmarks/bench_albedo_quadrature.py
 	$(BIN)/python benchmarks/bench_phong_normaliser.py
+	$(BIN)/python benchmarks/bench_catalogue_cost.py
+	$(BIN)/python benchmarks/bench_fit_batch.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache
