@@ -38,23 +38,10 @@ the horizon fail (pdf 0, weight 0). Quadrature hint ``("mirror", n)``.
 
 from __future__ import annotations
 
-import jax.numpy as jnp
 import numpy as np
 
-from .._numerics import safe_pow
 from .._validate import ParameterError, check_param, concrete
-from ._base import AbstractBRDF, expand_channels
-from .phong import (
-    INV_PI,
-    INV_TWO_PI,
-    _check_exponent,
-    _cos_alpha_r,
-    _lobe_probability,
-    _max_over_channels,
-    _mixture_pdf,
-    _mixture_sample,
-    _upper,
-)
+from .phong import ModifiedPhong, _check_exponent
 
 __all__ = ["Lewis", "registry_entries"]
 
@@ -64,55 +51,28 @@ _LEWIS_1994 = (
 )
 
 
-class Lewis(AbstractBRDF):
+def Lewis(kd=0.4, ks=0.4, exponent=30.0) -> ModifiedPhong:
     """Lewis's normalised Phong BRDF ``kd/pi + ks (n+2)/(2 pi) cos^n(alpha_r)`` (Lewis 1994; see
     the module docstring for the normalisation and how it relates to modified Phong).
 
     ``kd``, ``ks`` (may carry channels) in [0, 1] with ``kd + ks <= 1`` per channel (energy
-    conservation, validated for concrete values); ``exponent`` ``n >= 0`` a scalar.
+    conservation, validated for concrete values, in Lewis's parameter names); ``exponent``
+    ``n >= 0`` a scalar. The function is :class:`~brdf_fit.models.phong.ModifiedPhong` (same
+    eval, pdf and sampler), so it is built as one: ``rho_d = kd``, ``rho_s = ks``.
     """
-
-    kd: object = 0.4
-    ks: object = 0.4
-    exponent: object = 30.0
-
-    def __check_init__(self):
-        owner = "Lewis"
-        check_param("kd", self.kd, lo=0.0, hi=1.0, owner=owner)
-        check_param("ks", self.ks, lo=0.0, hi=1.0, owner=owner)
-        _check_exponent(self.exponent, owner)
-        d, s = concrete(self.kd), concrete(self.ks)
-        if d is not None and s is not None and d.dtype != object and s.dtype != object:
-            tot = np.asarray(d, dtype=float) + np.asarray(s, dtype=float)
-            if np.any(tot > 1.0):
-                raise ParameterError(
-                    f"{owner}: kd + ks must be <= 1 in every channel (energy conservation, "
-                    f"Lewis 1994), got kd + ks = {tot.tolist()}"
-                )
-
-    def _p_d(self):
-        return _lobe_probability(_max_over_channels(self.kd), _max_over_channels(self.ks))
-
-    def eval(self, wi, wo):
-        ok = _upper(wi, wo)
-        lobe = (self.exponent + 2.0) * INV_TWO_PI * safe_pow(_cos_alpha_r(wi, wo), self.exponent)
-        ch = self.channels()
-        val = self.kd * INV_PI + self.ks * expand_channels(lobe, ch)
-        return jnp.where(expand_channels(ok, ch), val, 0.0)
-
-    def pdf(self, wi, wo):
-        return _mixture_pdf(wi, wo, self.exponent, self._p_d())
-
-    def sample(self, wo, uc, u):
-        return _mixture_sample(self, wo, uc, u, self._p_d())
-
-    def quadrature_lobe(self):
-        """Quadrature hint (:func:`brdf_fit.quadrature.lobe_rule`): a power-cosine lobe about the
-        mirror direction."""
-        return "mirror", self.exponent
-
-    def selection_hint(self):
-        return _max_over_channels(self.kd) + _max_over_channels(self.ks)
+    owner = "Lewis"
+    check_param("kd", kd, lo=0.0, hi=1.0, owner=owner)
+    check_param("ks", ks, lo=0.0, hi=1.0, owner=owner)
+    _check_exponent(exponent, owner)
+    d, s = concrete(kd), concrete(ks)
+    if d is not None and s is not None and d.dtype != object and s.dtype != object:
+        tot = np.asarray(d, dtype=float) + np.asarray(s, dtype=float)
+        if np.any(tot > 1.0):
+            raise ParameterError(
+                f"{owner}: kd + ks must be <= 1 in every channel (energy conservation, "
+                f"Lewis 1994), got kd + ks = {tot.tolist()}"
+            )
+    return ModifiedPhong(rho_d=kd, rho_s=ks, exponent=exponent)
 
 
 def registry_entries():
