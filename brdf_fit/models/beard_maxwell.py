@@ -68,13 +68,12 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from .._frame import join, split
-from .._numerics import safe_div, safe_normalize3, safe_sqrt
+from .._frame import split
+from .._numerics import safe_div, safe_sqrt
 from .._validate import ParameterError, check_param, concrete
-from .._warp import sample_cosine_hemisphere
 from ..fresnel import conductor, f0_from_ior
-from ..microfacet import Beckmann, reflect_about
-from ._base import AbstractBRDF, BRDFSample, _sample_weight, expand_channels
+from ._base import AbstractBRDF, expand_channels
+from ._fallback import cosine_beckmann_pdf, cosine_beckmann_sample
 
 __all__ = ["BeardMaxwell", "calibrate_b", "registry_entries"]
 
@@ -215,29 +214,10 @@ class BeardMaxwell(AbstractBRDF):
         return 0.1 + 0.8 * safe_div(a_vol, a_vol + a_fs)
 
     def pdf(self, wi, wo):
-        ix, iy, iz = split(wi)
-        ox, oy, oz = split(wo)
-        hx, hy, hz, hok = safe_normalize3(ix + ox, iy + oy, iz + oz)
-        dvh = ox * hx + oy * hy + oz * hz
-        up = (iz > 0) & (oz > 0)
-        lobe_ok = up & hok & (dvh > 0)
-        D = Beckmann(self._sampler_alpha()).D(hx, hy, hz)
-        lobe = jnp.where(lobe_ok, D * safe_div(hz, 4.0 * dvh), 0.0)
-        p = self._p_cos()
-        return jnp.where(up, p * jnp.maximum(iz, 0.0) * INV_PI + (1.0 - p) * lobe, 0.0)
+        return cosine_beckmann_pdf(wi, wo, self._sampler_alpha(), self._p_cos())
 
     def sample(self, wo, uc, u):
-        ox, oy, oz = split(wo)
-        ok = oz > 0
-        ox, oy, oz = jnp.where(ok, ox, 0.0), jnp.where(ok, oy, 0.0), jnp.where(ok, oz, 1.0)
-        mx, my, mz = Beckmann(self._sampler_alpha()).sample_normal(u[..., 0], u[..., 1])
-        w_lobe = join(*reflect_about(ox, oy, oz, mx, my, mz))
-        w_cos = sample_cosine_hemisphere(u)
-        use_cos = uc < self._p_cos()
-        wi = jnp.where(use_cos[..., None], w_cos, w_lobe)
-        ok = ok & (use_cos | ((ox * mx + oy * my + oz * mz) > 0))
-        pdf = jnp.where(ok, self.pdf(wi, wo), 0.0)
-        return BRDFSample(wi=wi, pdf=pdf, weight=_sample_weight(self, wi, wo, pdf))
+        return cosine_beckmann_sample(self, wo, uc, u, self._sampler_alpha(), self._p_cos())
 
     def quadrature_lobe(self):
         """Quadrature hint (:func:`brdf_fit.quadrature.lobe_rule`): a half-vector lobe of the

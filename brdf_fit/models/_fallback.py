@@ -1,0 +1,51 @@
+"""Fallback sampler shared by models without an analytic importance sampler (HTSG,
+Beard-Maxwell): with probability ``p_cos`` the cosine hemisphere, otherwise a Beckmann NDF sample
+``D(h) (n.h)`` of width ``alpha`` reflected about ``h``. The pdf is the exact mixture density
+
+    p(wi) = p_cos cos(theta_i)/pi + (1 - p_cos) D(h) (n.h) / (4 wo.h)
+
+(half-vector Jacobian, Walter et al. 2007, eq. 14), so the chi-square test applies unchanged.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax.numpy as jnp
+
+from .._frame import join, split
+from .._numerics import safe_div, safe_normalize3
+from .._warp import sample_cosine_hemisphere
+from ..microfacet import Beckmann, reflect_about
+from ._base import BRDFSample, _sample_weight
+
+INV_PI = 1.0 / math.pi
+
+
+def cosine_beckmann_pdf(wi, wo, alpha, p_cos):
+    """The mixture density above (0 unless both directions are above the horizon)."""
+    ix, iy, iz = split(wi)
+    ox, oy, oz = split(wo)
+    hx, hy, hz, hok = safe_normalize3(ix + ox, iy + oy, iz + oz)
+    dvh = ox * hx + oy * hy + oz * hz
+    up = (iz > 0) & (oz > 0)
+    lobe_ok = up & hok & (dvh > 0)
+    D = Beckmann(alpha).D(hx, hy, hz)
+    lobe = jnp.where(lobe_ok, D * safe_div(hz, 4.0 * dvh), 0.0)
+    return jnp.where(up, p_cos * jnp.maximum(iz, 0.0) * INV_PI + (1.0 - p_cos) * lobe, 0.0)
+
+
+def cosine_beckmann_sample(model, wo, uc, u, alpha, p_cos) -> BRDFSample:
+    """Draw from the mixture (``uc < p_cos``: cosine); ``model.pdf`` must be
+    :func:`cosine_beckmann_pdf` with the same ``alpha`` and ``p_cos``."""
+    ox, oy, oz = split(wo)
+    ok = oz > 0
+    ox, oy, oz = jnp.where(ok, ox, 0.0), jnp.where(ok, oy, 0.0), jnp.where(ok, oz, 1.0)
+    mx, my, mz = Beckmann(alpha).sample_normal(u[..., 0], u[..., 1])
+    w_lobe = join(*reflect_about(ox, oy, oz, mx, my, mz))
+    w_cos = sample_cosine_hemisphere(u)
+    use_cos = uc < p_cos
+    wi = jnp.where(use_cos[..., None], w_cos, w_lobe)
+    ok = ok & (use_cos | ((ox * mx + oy * my + oz * mz) > 0))
+    pdf = jnp.where(ok, model.pdf(wi, wo), 0.0)
+    return BRDFSample(wi=wi, pdf=pdf, weight=_sample_weight(model, wi, wo, pdf))
