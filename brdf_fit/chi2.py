@@ -73,6 +73,7 @@ __all__ = [
     "default_resolution",
     "lobe_grid",
     "LOBE_GRID_MIN_EXPONENT",
+    "pooled_categories",
     "pooled_chi2_statistic",
     "sidak_threshold",
 ]
@@ -156,6 +157,27 @@ def sidak_threshold(alpha: float, test_count: int = 1) -> float:
     return -math.expm1(math.log1p(-alpha) / test_count)
 
 
+def pooled_categories(expected: np.ndarray, min_expected: float = 5.0) -> np.ndarray:
+    """Boolean mask of the categories that :func:`pooled_chi2_statistic` merges into its pooled bin.
+
+    The pooling depends on the expectations only: categories with ``0 < E < min_expected``, plus,
+    while the pooled bin expects fewer than ``min_expected`` counts, the regular categories with the
+    smallest expectations (ties in index order). Categories with ``E <= 0`` are never pooled.
+    """
+    exp = np.clip(np.asarray(expected, dtype=np.float64).reshape(-1), 0.0, None)
+    zero = exp <= 0.0
+    pooled = ~zero & (exp < min_expected)
+    if pooled.any():
+        pool_e = float(exp[pooled].sum())
+        big = np.flatnonzero(~zero & ~pooled)
+        for idx in big[np.argsort(exp[big], kind="stable")]:
+            if not pool_e < min_expected:
+                break
+            pooled[idx] = True
+            pool_e += exp[idx]
+    return pooled
+
+
 def pooled_chi2_statistic(
     observed: np.ndarray, expected: np.ndarray, min_expected: float = 5.0
 ) -> tuple[float, int, int]:
@@ -163,8 +185,9 @@ def pooled_chi2_statistic(
 
     Categories with ``0 < E < min_expected`` are merged into one bin; if that bin expects fewer
     than ``min_expected`` counts, the regular bins with the smallest expectations are merged into it
-    until it does (or none are left). Categories with ``E == 0`` are dropped; if any of them has
-    observations the statistic is ``inf``. Negative expectations are treated as 0.
+    until it does (or none are left); :func:`pooled_categories` gives the merged set. Categories
+    with ``E == 0`` are dropped; if any of them has observations the statistic is ``inf``. Negative
+    expectations are treated as 0.
 
     Returns:
         ``(statistic, dof, n_pooled)``: dof = number of bins - 1 (may be < 1: then no test is
@@ -175,22 +198,21 @@ def pooled_chi2_statistic(
     if obs.shape != exp.shape:
         raise ValueError(f"observed {obs.shape} and expected {exp.shape} differ in shape")
     zero = exp <= 0.0
-    small = ~zero & (exp < min_expected)
-    big = ~zero & ~small
-    order = np.argsort(exp[big], kind="stable")
-    big_o, big_e = obs[big][order], exp[big][order]
-    pool_o, pool_e = float(obs[small].sum()), float(exp[small].sum())
-    n_pooled = int(small.sum())
-    start = 0
+    pooled = pooled_categories(exp, min_expected)
+    regular = np.flatnonzero(~zero & ~pooled)
+    regular = regular[np.argsort(exp[regular], kind="stable")]
+    bins_o = list(obs[regular])
+    bins_e = list(exp[regular])
+    n_pooled = int(pooled.sum())
     if n_pooled > 0:
-        while pool_e < min_expected and start < big_e.size:
-            pool_o += big_o[start]
-            pool_e += big_e[start]
-            start += 1
-        n_pooled += start
-    bins_o = list(big_o[start:])
-    bins_e = list(big_e[start:])
-    if n_pooled > 0:
+        # summed in index order over the small categories first, then the absorbed regular ones
+        small = pooled & (exp < min_expected)
+        absorbed = np.flatnonzero(pooled & ~small)
+        absorbed = absorbed[np.argsort(exp[absorbed], kind="stable")]
+        pool_o, pool_e = float(obs[small].sum()), float(exp[small].sum())
+        for idx in absorbed:
+            pool_o += obs[idx]
+            pool_e += exp[idx]
         bins_o.append(pool_o)
         bins_e.append(pool_e)
     bo = np.asarray(bins_o, dtype=np.float64)
@@ -240,6 +262,7 @@ class Chi2Result:
         fail_z_threshold: largest accepted ``|fail_z|``.
         n_bins: number of bins in the statistic (including the pooled bin).
         n_pooled: number of categories (cells or the failure category) merged into the pooled bin.
+        min_expected: the pooling threshold used (see :func:`pooled_chi2_statistic`).
         alpha: the family-wise significance level.
         test_count: number of tests sharing ``alpha``.
         seed: the seed of the uniforms.
@@ -279,6 +302,7 @@ class Chi2Result:
     grid_mu_edges: np.ndarray | None = None
     #: rows: the histogram frame's axes in world coordinates (``None``: the shading frame)
     frame: np.ndarray | None = None
+    min_expected: float = 5.0
 
     @property
     def res_mu(self) -> int:
@@ -298,8 +322,38 @@ class Chi2Result:
     def phi_edges(self) -> np.ndarray:
         return np.linspace(0.0, _TWO_PI, self.res_phi + 1)
 
+    def _categories(self) -> tuple[np.ndarray, np.ndarray]:
+        """Observed and expected counts of the categories as :func:`chi2_test` pools them: the
+        cells (row-major), then the failure category (its expectation floored as there)."""
+        e_fail = self.expected_fail_fraction * self.n_samples
+        obs = np.append(self.observed.reshape(-1).astype(np.float64), float(self.n_fail))
+        exp = np.append(self.expected.reshape(-1), max(e_fail, float(np.finfo(np.float64).tiny)))
+        return obs, exp
+
+    def pooled_mask(self) -> np.ndarray:
+        """``(res_mu, res_phi)`` bool: the cells merged into the pooled bin of the statistic."""
+        _, exp = self._categories()
+        return pooled_categories(exp, self.min_expected)[:-1].reshape(self.expected.shape)
+
+    def fail_pooled(self) -> bool:
+        """Whether the failure category was merged into the pooled bin."""
+        _, exp = self._categories()
+        return bool(pooled_categories(exp, self.min_expected)[-1])
+
+    def pooled_bin(self) -> tuple[float, float, int]:
+        """``(observed, expected, n_categories)`` of the pooled bin (zeros when nothing is pooled);
+        it enters the statistic as one term ``(O - E)^2 / E``."""
+        obs, exp = self._categories()
+        m = pooled_categories(exp, self.min_expected)
+        return float(obs[m].sum()), float(exp[m].sum()), int(m.sum())
+
     def contributions(self) -> np.ndarray:
-        """Per-cell ``(O - E)^2 / E`` before pooling (``inf`` where ``E == 0 < O``)."""
+        """Per-cell ``(O - E)^2 / E`` before pooling (``inf`` where ``E == 0 < O``).
+
+        These are *not* the statistic's terms for the cells of :meth:`pooled_mask`: a cell with
+        ``E = 0.1`` and ``O = 2`` shows 36 here but enters the statistic only through the pooled
+        bin (:meth:`pooled_bin`). :meth:`worst_cells` ranks the terms actually summed.
+        """
         o = self.observed.astype(np.float64)
         e = self.expected
         pos = e > 0.0
@@ -309,29 +363,53 @@ class Chi2Result:
         return out
 
     def worst_cells(self, k: int = 5) -> str:
-        """A table of the ``k`` cells with the largest contributions, plus the failure category."""
-        contrib = self.contributions()
-        flat = np.argsort(-contrib.reshape(-1), kind="stable")[: max(int(k), 0)]
+        """A table of the ``k`` largest terms of the statistic, plus the failure category.
+
+        A term is an unpooled cell or the pooled bin (one row, ``pooled bin (n cells)``); pooled
+        cells are not listed on their own, since their individual ``(O - E)^2 / E`` (which can be
+        large for ``E << 1``, see :meth:`contributions`) is not part of the statistic. The failure
+        row shows its own term, or ``pooled`` when it is merged into the pooled bin.
+        """
+        contrib = self.contributions().reshape(-1)
+        pooled = self.pooled_mask().reshape(-1)
+        # pooled cells, and empty cells that expect nothing (dropped categories), rank below
+        # every term
+        dropped = pooled | ((self.expected.reshape(-1) <= 0.0) & (contrib == 0.0))
+        terms = np.where(dropped, -1.0, contrib)
+        pool_o, pool_e, n_pool = self.pooled_bin()
+        pool_term = (pool_o - pool_e) ** 2 / pool_e if n_pool else -1.0
+        order = list(np.argsort(-terms, kind="stable")[: max(int(k), 0)])
+        if n_pool and k > 0:
+            # the pooled bin takes its rank among the cells; the table keeps k rows
+            pos = int(np.sum(terms[order] >= pool_term))
+            order = (order[:pos] + [-1] + order[pos:])[: int(k)]
         mu_e, phi_e = self.mu_edges, self.phi_edges
         lines = [
             f"{'mu range':<15} {'phi range (rad)':<15} {'observed':>10} {'expected':>12} "
             f"{'(O-E)^2/E':>11}"
         ]
-        for idx in flat:
+        for idx in order:
+            if idx < 0:
+                n_cells = int(pooled.sum())
+                label = f"pooled bin ({n_cells} cells{' + fail.' if n_pool > n_cells else ''})"
+                lines.append(f"{label:<31} {pool_o:>10.0f} {pool_e:>12.2f} {pool_term:>11.3g}")
+                continue
+            if dropped[idx]:
+                continue  # fewer terms than k
             i, j = divmod(int(idx), self.res_phi)
             lines.append(
                 f"[{mu_e[i]:+.3f},{mu_e[i + 1]:+.3f}) [{phi_e[j]:6.3f},{phi_e[j + 1]:6.3f}) "
                 f"{int(self.observed[i, j]):>10d} {self.expected[i, j]:>12.2f} "
-                f"{contrib[i, j]:>11.3g}"
+                f"{contrib[idx]:>11.3g}"
             )
         e_fail = self.expected_fail_fraction * self.n_samples
-        if e_fail > 0:
-            c_fail = (self.n_fail - e_fail) ** 2 / e_fail
+        if self.fail_pooled():
+            c_fail = f"{'pooled':>11}"
+        elif e_fail > 0:
+            c_fail = f"{(self.n_fail - e_fail) ** 2 / e_fail:>11.3g}"
         else:
-            c_fail = math.inf if self.n_fail else 0.0
-        lines.append(
-            f"{'failures (pdf = 0)':<31} {self.n_fail:>10d} {e_fail:>12.2f} {c_fail:>11.3g}"
-        )
+            c_fail = f"{math.inf if self.n_fail else 0.0:>11.3g}"
+        lines.append(f"{'failures (pdf = 0)':<31} {self.n_fail:>10d} {e_fail:>12.2f} {c_fail}")
         return "\n".join(lines)
 
     def __str__(self) -> str:
@@ -750,6 +828,7 @@ def chi2_test(
         cell_nodes_used=nodes,
         grid_mu_edges=None if mu_edges is None else mu_e,
         frame=frame,
+        min_expected=float(min_expected),
     )
 
 

@@ -149,6 +149,74 @@ def test_pooling_rule():
     assert stat == math.inf
 
 
+def _terms_sum(r):
+    """The statistic rebuilt from the result's report: unpooled cells, the pooled bin, and the
+    failure category unless it is pooled."""
+    contrib, pooled = r.contributions(), r.pooled_mask()
+    pool_o, pool_e, n_pool = r.pooled_bin()
+    total = float(np.sum(contrib[~pooled & (r.expected > 0.0)]))
+    if n_pool:
+        total += (pool_o - pool_e) ** 2 / pool_e
+    if not r.fail_pooled():
+        e_fail = r.expected_fail_fraction * r.n_samples
+        total += (r.n_fail - e_fail) ** 2 / e_fail
+    return total
+
+
+def test_worst_cells_lists_the_terms_of_the_statistic_not_pooled_cells():
+    """Regression: ``worst_cells`` ranked every cell by its own ``(O - E)^2 / E``, also cells that
+    are pooled and enter the statistic only through the pooled bin. A cell with ``E = 0.19`` and
+    ``O = 2`` then topped the table with 16.9 while the pooled bin it belonged to (``E = 8.3``,
+    ``O = 12``) added 1.7, which sent the diagnosis of a failing test to the pooling rule."""
+    observed = np.array([[2, 0, 480, 20_600], [1, 3_020, 5_200, 10_700]], dtype=np.int64)
+    expected = np.array([[0.19, 2.5, 510.0, 20_500.0], [1.2, 3_000.0, 5_300.0, 10_000.0]])
+    n = 50_000
+    n_fail = n - int(observed.sum())
+    e_fail = n - float(expected.sum())
+    obs_cat = np.append(observed.reshape(-1), n_fail).astype(np.float64)
+    exp_cat = np.append(expected.reshape(-1), e_fail)
+    stat, dof, n_pooled = chi2.pooled_chi2_statistic(obs_cat, exp_cat)
+    r = chi2.Chi2Result(
+        statistic=stat, dof=dof, p_value=chi2.chi2_sf(stat, dof), threshold=0.01, passed=False,
+        n_samples=n, fail_fraction=n_fail / n, expected_fail_fraction=e_fail / n,
+        observed=observed, expected=expected, n_fail=n_fail, n_bins=dof + 1, n_pooled=n_pooled,
+    )
+    assert r.contributions()[0, 0] == pytest.approx((2 - 0.19) ** 2 / 0.19)  # 17.2, not a term
+    rows = r.worst_cells(3).splitlines()[1:-1]
+    assert len(rows) == 3
+    assert rows[0].startswith("[+0.000,+1.000) [ 4.712, 6.283)")  # 700^2 / 10000 = 49
+    # the pooled cell E = 0.19, O = 2 is not listed; the pooled bin (term 1.86) is third
+    assert not any(row.startswith("[-1.000,+0.000) [ 0.000, 1.571)") for row in rows)
+    pool_term = (483 - 513.89) ** 2 / 513.89
+    assert rows[2].startswith("pooled bin (4 cells)") and f"{pool_term:.3g}" in rows[2]
+    # the three cells with E < 5 (0.19 + 2.5 + 1.2 = 3.89) absorb the smallest regular cell (510)
+    np.testing.assert_array_equal(r.pooled_mask(), [[True, True, True, False],
+                                                    [True, False, False, False]])
+    assert r.pooled_bin() == (2 + 0 + 1 + 480, pytest.approx(0.19 + 2.5 + 1.2 + 510.0), 4)
+    assert not r.fail_pooled() and n_pooled == 4
+    assert _terms_sum(r) == pytest.approx(stat, rel=1e-12)
+
+
+def test_reported_terms_sum_to_the_statistic_of_a_run():
+    """The pooling the result reports (``pooled_mask``, ``pooled_bin``, ``fail_pooled``) is the one
+    the statistic used: the reported terms add up to it, and no pooled cell is listed alone."""
+    sample, pdf = phong()
+    r = chi2.chi2_test(sample, pdf, n_samples=N)
+    pooled = r.pooled_mask()
+    assert pooled.sum() > 10 and r.n_pooled == pooled.sum() + r.fail_pooled()
+    assert np.max(r.contributions()[pooled]) > 0.0  # some pooled cells did receive samples
+    assert _terms_sum(r) == pytest.approx(r.statistic, rel=1e-12)
+    mu_e, phi_e = r.mu_edges, r.phi_edges
+    pooled_labels = {
+        f"[{mu_e[i]:+.3f},{mu_e[i + 1]:+.3f}) [{phi_e[j]:6.3f},{phi_e[j + 1]:6.3f})"
+        for i, j in zip(*np.nonzero(pooled), strict=True)
+    }
+    rows = r.worst_cells(r.res_mu * r.res_phi).splitlines()[1:-1]
+    assert not any(row[:31] in pooled_labels for row in rows)
+    assert sum(row.startswith("pooled bin") for row in rows) == 1
+    assert len(rows) == r.n_bins - (0 if r.fail_pooled() else 1)
+
+
 # --------------------------------------------------------------------------------------------
 # Correct samplers pass
 # --------------------------------------------------------------------------------------------
