@@ -127,6 +127,30 @@ def _transform(p) -> Transform:
     return Transform(p.lo, p.hi)
 
 
+#: A fitted value this close to an interval end (relative to the interval's width, or to
+#: max(1, |bound|) for a half-bounded parameter) is reported as at its bound: there the
+#: unconstrained solver has (almost) no gradient left, so the value is a limit, not an optimum
+#: of the model, and its standard error describes nothing (e.g. an f0 channel pushed to 1).
+#: 1e-4: a logistic parameter creeps towards its end ever more slowly (its slope t (1 - t)
+#: vanishes); optimistix's LM stopped an f0 that wanted to exceed 1 at 1 - 1.4e-6 after 256
+#: steps, batch-lm at 1 - 1e-16 (measured).
+AT_BOUND_REL = 1e-4
+
+
+def at_bound(param, value) -> np.ndarray:
+    """Boolean array (shape of ``value``): which entries of a fitted ``param`` value sit at an
+    end of its interval (:data:`AT_BOUND_REL`)."""
+    x = np.asarray(value, float)
+    out = np.zeros(x.shape, bool)
+    lo, hi = param.lo, param.hi
+    scale = (hi - lo) if (lo is not None and hi is not None) else None
+    for b in (lo, hi):
+        if b is not None:
+            tol = AT_BOUND_REL * (scale if scale is not None else max(1.0, abs(b)))
+            out |= np.abs(x - b) <= tol
+    return out
+
+
 # ----------------------------------------------------------------------------- residuals
 
 
@@ -163,17 +187,25 @@ class _Problem:
     metric: str
     cos_weight: bool
 
-    def unflatten(self, u):
+    def split(self, x):
+        """Flat vector (free parameters in order, each raveled) -> {name: array of its shape}."""
         out, k = {}, 0
-        for name, shape, tr in zip(self.free, self.shapes, self.transforms, strict=True):
+        for name, shape in zip(self.free, self.shapes, strict=True):
             size = int(np.prod(shape)) if shape else 1
-            out[name] = tr.forward(u[k:k + size].reshape(shape))
+            out[name] = x[k:k + size].reshape(shape)
             k += size
+        return out
+
+    def unflatten(self, u):
+        """Unconstrained flat ``u`` -> all physical parameters (the fixed ones included)."""
+        out = {name: tr.forward(v) for (name, v), tr in
+               zip(self.split(u).items(), self.transforms, strict=True)}
         return {**self.fixed, **out}
 
-    def residuals(self, u, arrays):
+    def residuals_at(self, params, arrays):
+        """Residual vector of the model built from ``params`` (all parameters, physical)."""
         wi, wo, f, w, sigma, floor = arrays
-        model = self.entry.build(**self.unflatten(u))
+        model = self.entry.build(**params)
         m = model.eval(wi, wo)
         if m.ndim == 1:
             m = m[:, None]
@@ -183,6 +215,15 @@ class _Problem:
         if self.cos_weight:
             r = r * c
         return r.reshape(-1)
+
+    def residuals(self, u, arrays):
+        """Residuals as a function of the unconstrained flat ``u`` (what the solvers see)."""
+        return self.residuals_at(self.unflatten(u), arrays)
+
+    def residuals_phys(self, x, arrays):
+        """Residuals as a function of the flat free *physical* parameters (for standard
+        errors: the Jacobian in the parameters the user reads)."""
+        return self.residuals_at({**self.fixed, **self.split(x)}, arrays)
 
 
 def solve(problem: _Problem, u0, arrays, solver="lm", rtol=1e-10, atol=1e-10, max_steps=256):
@@ -219,6 +260,9 @@ class FitResult:
     starts: int = 1
     message: str = ""
     checks: list = dataclasses.field(default_factory=list)
+    #: free parameters whose fitted value (any channel) sits at an end of its interval
+    #: (:func:`at_bound`): a limit, not an optimum; its standard error means nothing
+    at_bound: tuple[str, ...] = ()
 
     def to_dict(self) -> dict:
         def tolist(v):
@@ -239,6 +283,7 @@ class FitResult:
             "n_params": int(self.n_params),
             "seconds": round(float(self.seconds), 4),
             "starts": int(self.starts),
+            "at_bound": list(self.at_bound),
             "message": self.message,
             "checks": [c.to_dict() for c in self.checks],
         }
@@ -289,6 +334,7 @@ def fit(
     rtol: float = 1e-10,
     atol: float = 1e-10,
     checks: Sequence[str] = (),
+    guess: str = "grid",
 ) -> FitResult:
     """Fit registry model ``model`` to ``data``.
 
@@ -296,7 +342,10 @@ def fit(
     defaults, broadcast to the data's channel count for channel parameters). ``multistart``:
     additional random starts (normal perturbations of the start in unconstrained space, seeded);
     the lowest final loss wins. ``checks``: names of :mod:`brdf_fit.checks` to run on the fitted
-    model (reported in the result).
+    model (reported in the result). ``guess``: ``"grid"`` (default) starts the parameters that
+    have no ``init`` value from the best of a coarse design evaluated on a subsample of the data
+    (:mod:`brdf_fit.guess`; the registry defaults are one of its candidates); ``"none"`` starts
+    them at the registry defaults.
     """
     from . import registry
 
@@ -306,6 +355,10 @@ def fit(
         raise FitError(f"unknown metric {metric!r}; valid metrics: {', '.join(METRICS)}")
     if solver not in SOLVERS:
         raise FitError(f"unknown solver {solver!r}; valid solvers: {', '.join(SOLVERS)}")
+    from . import guess as _guess
+
+    if guess not in _guess.GUESSES:
+        raise FitError(f"unknown guess {guess!r}; valid: {', '.join(_guess.GUESSES)}")
     fix = dict(fix or {})
     init = dict(init or {})
     for k in (*fix, *init):
@@ -339,6 +392,16 @@ def fit(
         np.zeros(0))
     run = jax.jit(lambda u, a: solve(problem, u, a, solver, rtol, atol, max_steps))
     loss_fn = jax.jit(lambda u, a: 0.5 * jnp.sum(problem.residuals(u, a) ** 2))
+    vary = tuple(n for n in free if n not in init) if guess == "grid" else ()
+    if vary:
+        cands = _guess.design(problem, u0, vary, defaults)
+        sub = _guess.subsample(n_used)
+        sub_arrays = tuple(a[sub] if isinstance(a, jax.Array) else a for a in arrays)
+        per_channel = jax.jit(jax.vmap(lambda u, a: 0.5 * jnp.sum(
+            problem.residuals(u, a).reshape(-1, C) ** 2, axis=0), in_axes=(0, None)))
+        losses = np.asarray(per_channel(jnp.asarray(cands, dtype), sub_arrays))
+        u0 = np.asarray(_guess.pick(np, cands, losses, _guess.layout(problem, vary),
+                                    _guess.channel_index(problem, C)))
     rng = np.random.default_rng(seed)
     best = None
     for s in range(max(1, multistart)):
@@ -352,26 +415,13 @@ def fit(
     # standard errors: Jacobian w.r.t. the free physical parameters, flattened
     flat_phys = jnp.concatenate([jnp.ravel(phys[n]) for n in free]) if free else jnp.zeros(0)
 
-    def resid_phys(x):
-        out, k = {}, 0
-        for name, shape in zip(free, problem.shapes, strict=True):
-            size = int(np.prod(shape)) if shape else 1
-            out[name] = x[k:k + size].reshape(shape)
-            k += size
-        model_ = entry.build(**{**problem.fixed, **out})
-        wi, wo, f, w, sigma, floor = arrays
-        m = model_.eval(wi, wo)
-        m = jnp.broadcast_to(m if m.ndim == 2 else m[:, None], f.shape)
-        r = _metric(metric, m, f, wi[:, 2:3], sigma, w, floor)
-        return (r * wi[:, 2:3] if cos_weight else r).reshape(-1)
-
     # jitted: eagerly, each of the ~90 operations compiles on its own (3-5 s per fit, measured)
-    r = np.asarray(jax.jit(resid_phys)(flat_phys))
+    r = np.asarray(jax.jit(problem.residuals_phys)(flat_phys, arrays))
     m_eff = int(np.sum(np.asarray(arrays[3]).reshape(-1) > 0))
     p = int(flat_phys.shape[0])
     stderr = {}
     if p:
-        J = np.asarray(jax.jit(jax.jacfwd(resid_phys))(flat_phys))
+        J = np.asarray(jax.jit(jax.jacfwd(problem.residuals_phys))(flat_phys, arrays))
         try:
             cov = covariance(J, r, m_eff, sandwich=arrays[4] is None)
             se = np.sqrt(np.maximum(np.diag(cov), 0.0))
@@ -401,6 +451,7 @@ def fit(
         fixed={k: np.asarray(v) for k, v in fixed.items()},
         starts=max(1, multistart),
         message="" if converged else f"did not converge in {max_steps} steps",
+        at_bound=tuple(n for n in free if at_bound(entry.param(n), params[n]).any()),
     )
     if checks:
         from .checks import run_checks

@@ -35,7 +35,7 @@ import pytest
 
 from brdf_fit import registry
 from brdf_fit.data import GonioData
-from brdf_fit.fit import _metric, _Problem, _transform, covariance, fit, solve
+from brdf_fit.fit import _Problem, _transform, covariance, fit, solve
 from data_synth.plans import in_plane, random_sparse
 
 RTOL = 1e-6
@@ -198,7 +198,6 @@ def batched_fits(name, truth, use_sigma=True, n_trials=N_TRIALS, seed0=0):
                                      for n, tr in zip(free, trs, strict=True)]))
     Wi, Wo = jnp.asarray(wi), jnp.asarray(wo)
     w = jnp.ones((wi.shape[0], 1))
-    c = Wi[:, 2:3]
 
     def one(f, s):
         sig = s if use_sigma else None
@@ -206,12 +205,8 @@ def batched_fits(name, truth, use_sigma=True, n_trials=N_TRIALS, seed0=0):
         u, ok, _ = solve(prob, u0, arrays)
         x = jnp.stack([jnp.ravel(tr.forward(u[k]))[0] for k, tr in enumerate(trs)])
 
-        def resid(x):
-            ps = {n: (x[k].reshape(sh)) for k, (n, sh) in enumerate(zip(free, shapes,
-                                                                        strict=True))}
-            m = entry.build(**ps).eval(Wi, Wo)
-            m = jnp.broadcast_to(m if m.ndim == 2 else m[:, None], f.shape)
-            return _metric("log", m, f, c, sig, w, 0.0).reshape(-1)
+        def resid(x):  # the residual of fit(), in the physical parameters
+            return prob.residuals_phys(x, arrays)
 
         r = resid(x)
         J = jax.jacfwd(resid)(x)
