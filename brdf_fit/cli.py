@@ -8,6 +8,8 @@
     brdf-fit fit DATA --model NAME [--fix NAME=VALUE ...] [--init NAME=VALUE ...]
                  [--metric log|cuberoot|relative|absolute] [--solver NAME] [--max-zenith-deg X]
                  [--multistart K] [--check NAME ...] [--json]
+    brdf-fit fit-batch DATA... --model NAME [--fix ...] [--init ...] [--metric ...]
+                 [--guess grid|none] [--skip-bad] [--out FILE.csv|.json] [--json] [--quiet]
     brdf-fit demo [--out DIR] [--json]
     brdf-fit convert phong-to-ggx [--source modified-phong|blinn-phong|...] [--exponents N ...]
                  [--metric log] [--max-zenith-deg 80] [--json]
@@ -345,6 +347,9 @@ def _print_fit(result, data, path: str) -> None:
     print(f"  {'parameter':<16} {'value':>12}  standard error")
     for row in _param_rows(result, data.channels):
         print(row)
+    if result.at_bound:
+        print(f"  at an interval end: {', '.join(result.at_bound)} (a limit, not an optimum; "
+              "its standard error means nothing)")
     status = "yes" if result.converged else f"NO ({result.message})"
     print(f"converged: {status}; steps: {result.steps}; starts: {result.starts}; "
           f"residual rms: {result.residual_rms:.6g}; time: {result.seconds:.2f} s")
@@ -384,6 +389,148 @@ def cmd_fit(args) -> int:
         _print_fit(result, data, args.data)
     failed = [c for c in result.checks if not c.ok]
     return 0 if result.converged and not failed else 1
+
+
+class _BatchProgress:
+    """A bar of finished problems on stderr for fit_batch (rewritten in place on a terminal)."""
+
+    def __init__(self, label: str, enabled: bool = True):
+        self.label, self.enabled = label, enabled
+        self.tty = sys.stderr.isatty()
+
+    def __call__(self, done: int, total: int, stage: str) -> None:
+        if not self.enabled:
+            return
+        width = 24
+        filled = int(width * done / max(total, 1))
+        msg = f"[{'#' * filled}{'-' * (width - filled)}] {done}/{total} {self.label}: {stage}"
+        if self.tty:
+            print("\r" + msg.ljust(78), end="", file=sys.stderr, flush=True)
+        else:
+            print(msg, file=sys.stderr, flush=True)
+
+    def close(self) -> None:
+        if self.enabled and self.tty:
+            print("\r" + " " * 78 + "\r", end="", file=sys.stderr, flush=True)
+
+
+def _read_many(paths, skip_bad: bool):
+    """Read every file; a bad one is reported with its path. Without ``skip_bad`` any bad file
+    stops the command before anything is fitted (nothing computed is lost)."""
+    good, bad = [], []
+    for path in paths:
+        try:
+            data = read_data(path)
+            data.validate()
+            good.append((path, data))
+        except _user_errors() as e:
+            bad.append(f"{path}: {e}" if not str(e).startswith(path) else str(e))
+    if bad and not skip_bad:
+        raise CLIError(f"{len(bad)} of {len(paths)} file(s) could not be read (--skip-bad fits "
+                       "the others):\n  " + "\n  ".join(bad))
+    if not good:
+        raise CLIError("no readable data file:\n  " + "\n  ".join(bad))
+    return good, bad
+
+
+def _batch_rows(paths, res, channels) -> list[dict]:
+    rows = []
+    for b, path in enumerate(paths):
+        rows.append({
+            "file": path, "model": res.model_name,
+            "params": {k: np.asarray(v[b]).tolist() for k, v in res.params.items()},
+            "stderr": {k: np.asarray(v[b]).tolist() for k, v in res.stderr.items()},
+            "converged": bool(res.converged[b]), "steps": int(res.steps[b]),
+            "metric": res.metric, "residual_rms": float(res.residual_rms[b]),
+            "n_samples": int(res.n_samples[b]), "channels": list(channels),
+            "at_bound": [k for k, v in res.at_bound.items() if np.asarray(v[b]).any()],
+        })
+    return rows
+
+
+def _write_batch_table(rows, path: str) -> None:
+    import csv
+
+    if _ext(path) == ".json":
+        with open(path, "w") as fh:
+            json.dump(rows, fh, indent=1)
+        return
+    if _ext(path) != ".csv":
+        raise CLIError(f"{path}: --out expects .csv or .json")
+    cols = ["file", "converged", "steps", "residual_rms", "n_samples"]
+    flat = []
+    for r in rows:
+        d = {k: r[k] for k in cols}
+        for kind in ("params", "stderr"):
+            for name, v in r[kind].items():
+                a = np.atleast_1d(np.asarray(v, float))
+                for j, x in enumerate(a):
+                    key = name if a.size == 1 else f"{name}_{r['channels'][j].lower()}" if (
+                        len(r["channels"]) == a.size) else f"{name}_{j}"
+                    d[key if kind == "params" else f"stderr_{key}"] = f"{x:.10g}"
+        d["at_bound"] = ";".join(r["at_bound"])
+        flat.append(d)
+    fields = list(dict.fromkeys(k for d in flat for k in d))
+    with open(path, "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=fields)
+        w.writeheader()
+        w.writerows(flat)
+
+
+def cmd_fit_batch(args) -> int:
+    _x64()
+    from .fit_batch import fit_batch
+
+    reg = _registry()
+    entry = reg.get(args.model)
+    fix = parse_params(args.fix, entry, "--fix")
+    init = parse_params(args.init, entry, "--init")
+    both = sorted(set(fix) & set(init))
+    if both:
+        raise CLIError(f"parameter(s) {', '.join(both)} given both --fix and --init")
+    if args.out is not None and _ext(args.out) not in (".csv", ".json"):
+        raise CLIError(f"{args.out}: --out expects .csv or .json")
+    good, bad = _read_many(args.data, args.skip_bad)
+    # one batch per (sample count, channels, sigma or not): fit_batch stacks equal shapes
+    groups: dict = {}
+    for path, d in good:
+        groups.setdefault((d.n, d.channels, d.sigma is not None), []).append((path, d))
+    rows = []
+    for (n, channels, has_sigma), items in groups.items():
+        paths = [p for p, _ in items]
+        label = f"{entry.name}, {len(items)} file(s) of {n} samples"
+        progress = _BatchProgress(label, enabled=not args.quiet)
+        try:
+            res = fit_batch(
+                np.stack([d.wi for _, d in items]), np.stack([d.wo for _, d in items]),
+                np.stack([d.value for _, d in items]), entry.name,
+                weight=np.stack([d.weight for _, d in items]),
+                sigma=np.stack([d.sigma for _, d in items]) if has_sigma else None,
+                fix=fix, init=init, metric=args.metric, cos_weight=args.cos_weight,
+                max_zenith_deg=args.max_zenith_deg, max_steps=args.max_steps,
+                guess=args.guess, progress=progress)
+        finally:
+            progress.close()
+        rows += _batch_rows(paths, res, channels)
+    if args.out is not None:
+        _write_batch_table(rows, args.out)
+    if args.json:
+        print(json.dumps({"model": entry.name, "results": rows, "unreadable": bad}, indent=2))
+    else:
+        names = [n for n in entry.param_names]
+        print(f"{entry.name} fitted to {len(rows)} file(s), metric {args.metric}")
+        head = f"  {'file':<28} {'conv':>4} {'steps':>5} {'rms':>10}  " + "  ".join(names)
+        print(head)
+        for r in rows:
+            vals = "  ".join(_fmt(r["params"][k]) for k in names)
+            flag = "" if not r["at_bound"] else f"  (at bound: {', '.join(r['at_bound'])})"
+            print(f"  {r['file'][-28:]:<28} {'yes' if r['converged'] else 'NO':>4} "
+                  f"{r['steps']:>5} {r['residual_rms']:10.4g}  {vals}{flag}")
+        for msg in bad:
+            print(f"  skipped: {msg}")
+        if args.out is not None:
+            print(f"wrote {args.out}")
+    return 0 if all(r["converged"] for r in rows) and not bad else 1
 
 
 # ----------------------------------------------------------------------------- demo
@@ -690,6 +837,30 @@ def build_parser() -> argparse.ArgumentParser:
                    help="run this check on the fitted model (repeatable)")
     f.add_argument("--json", action="store_true", help="print FitResult.to_dict()")
     f.set_defaults(func=cmd_fit)
+
+    fb = sub.add_parser("fit-batch", help="fit one registry model to many data files at once "
+                                          "(brdf_fit.fit_batch)")
+    fb.add_argument("data", nargs="+", help="data files (.csv, .npz, MERL .binary); files with "
+                                            "equal sample counts are fitted in one batch")
+    fb.add_argument("--model", required=True, help="registry name (see 'brdf-fit models')")
+    fb.add_argument("--fix", action="append", metavar="NAME=VALUE",
+                    help="hold a parameter at a value for every file; repeatable")
+    fb.add_argument("--init", action="append", metavar="NAME=VALUE",
+                    help="start value of a parameter (default: the grid guess); repeatable")
+    fb.add_argument("--metric", default="log", help="log (default), cuberoot, relative, absolute")
+    fb.add_argument("--max-zenith-deg", type=float, default=None,
+                    help="mask samples with either direction beyond this zenith angle")
+    fb.add_argument("--cos-weight", action="store_true", help="weight residuals by cos(theta_i)")
+    fb.add_argument("--max-steps", type=int, default=256)
+    fb.add_argument("--guess", default="grid", help="grid (default: coarse design on a subsample)"
+                                                     " or none (registry defaults)")
+    fb.add_argument("--skip-bad", action="store_true",
+                    help="fit the readable files and list the unreadable ones (default: stop)")
+    fb.add_argument("--out", default=None, metavar="FILE",
+                    help="write one row per file to FILE (.csv or .json)")
+    fb.add_argument("--json", action="store_true", help="print the per-file results as JSON")
+    fb.add_argument("--quiet", action="store_true", help="no progress bar")
+    fb.set_defaults(func=cmd_fit_batch)
 
     d = sub.add_parser("demo", help="the main job on an embedded default (no input needed)")
     d.add_argument("--out", default="brdf_fit_demo", metavar="DIR",

@@ -8,13 +8,27 @@ builds it for that problem alone, so the two agree at the optimum.
 
 **The straggler problem.** Under ``vmap`` a ``while_loop`` runs until its slowest member stops:
 members that have converged are masked, but still computed. In 10,000 GGX fits the median
-problem needs ~15 steps and the slowest hundreds (an ``f0`` channel running to its bound of 1),
-so one vmapped solve pays ``B x max(steps)`` instead of ``sum(steps)``. Here the solve is run
-in *chunks* of ``chunk_steps`` iterations; after each chunk the converged problems are kept and
-only the stragglers are gathered into a compact batch, padded up to a bucket size from a fixed
-ladder (``16 * 4**k``, so at most a handful of shapes is ever compiled), and solved on from
-where they stopped. ``benchmarks/bench_fit_batch.py`` measures this against one plain vmapped
-solve.
+problem needs ~9 steps and the slowest ~100 (an ``f0`` channel running to its bound of 1), so
+one vmapped solve pays ``B x max(steps)`` instead of ``sum(steps)``. Three things bound it here:
+
+- *groups*: the lanes are taken in groups of ``group`` (:data:`GROUP` = 8) problems, one group
+  after another (``lax.map``), and each group runs its own while_loop, which stops when *its*
+  members are done. This is also faster per step: one vmapped step over thousands of lanes
+  materialises every intermediate of the residual and its tangents as a (B, M C) array, far
+  larger than the caches (measured: 147 us per problem-step vmapped over 2,000 problems, 62-67
+  us in groups of 8-32, see :func:`_grouped`);
+- *chunks*: the solve runs ``chunk_steps`` iterations at a time; after each chunk the converged
+  problems are kept and only the stragglers are gathered into a compact batch and solved on from
+  where they stopped;
+- *blocks*: every call takes a fixed number of lanes (the batch's bucket ``16 * 2**k``, at most
+  :data:`MAX_BLOCK`), so one shape is compiled per batch-size class and the chunk length is data,
+  not a static argument; padding lanes are marked done, so a group of padding costs nothing.
+
+``benchmarks/bench_fit_batch.py`` measures this against one plain vmapped solve
+(``chunk_steps=None, group=None``).
+
+**Initial guess.** ``guess="grid"`` (default) starts the parameters without an ``init`` value
+from the best of a coarse design evaluated on a subsample (:mod:`brdf_fit.guess`).
 
 **Solvers.** ``solver="batch-lm"`` (the default) is the Levenberg-Marquardt method written here
 for batches: Marquardt scaling by the running maximum of ``diag(J^T J)`` (as MINPACK), the
@@ -38,19 +52,20 @@ solve, so there each chunk restarts the solver from the last iterate (the dampin
 optimum is the same). Measured on this 2-core CPU, one optimistix LM step cost ~4x a batch-lm
 step (it linearises and evaluates the residual separately and solves by QR).
 
-**Sharding.** With ``shard=True`` (opt-in, default off while the problems below are open) the batch
-axis is laid out over a 1-D :class:`jax.sharding.Mesh` of ``jax.devices()`` with
-``NamedSharding(mesh, P("batch"))`` and each chunk runs under ``jax.shard_map``: every device
-iterates its own shard with its own ``while_loop``, so a device stops when *its* members are
-done, not when the slowest member anywhere is. Batches are padded to a multiple of the device
-count (padding lanes repeat a real problem and are dropped).
+**Sharding.** With ``shard=True`` the batch axis is laid out over a 1-D
+:class:`jax.sharding.Mesh` of ``jax.devices()`` with ``NamedSharding(mesh, P("batch"))`` and
+every call runs under ``jax.shard_map``: each device iterates its own groups, so a device stops
+when *its* members are done. Blocks are multiples of ``group x`` the device count. On a CPU,
+``XLA_FLAGS=--xla_force_host_platform_device_count=N`` (set before JAX starts) gives N host
+devices, one per core: the groups of one device run one after another on one core, so this is
+how a batch uses all cores. The default ``shard=None`` shards whenever more than one device is
+visible.
 
-Known problem (unresolved): with ``XLA_FLAGS=--xla_force_host_platform_device_count=2`` on the
-2-core development VM, batches of 2,000 and 10,000 problems hung (every thread waiting on a
-futex), whether the chunk ran under ``shard_map`` or as a plain ``jit`` on sharded inputs;
-5 and 256 problems ran (see ``benchmarks/results/fit_batch.md``), but at 256 problems the
-sharded results differed from the unsharded ones (max |f0| difference 0.96, unexplained; at 5
-problems they agree to 1e-8). Until both are understood sharding is opt-in.
+History: before the groups (one vmapped while_loop over the whole shard), batches of 2,000 and
+10,000 problems hung on 2 host devices of the 2-core development VM (every thread in a futex
+wait) and 256 problems disagreed with the unsharded run (max |f0| difference 0.96); with the
+grouped loops 10,000 problems run sharded and agree with the unsharded results to 3e-9 (the
+last digits differ because the two compile to different fusions; see the benchmark).
 """
 
 from __future__ import annotations
@@ -66,14 +81,15 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
+from . import guess as _guess
 from .fit import (
     METRICS,
     RELATIVE_FLOOR,
     SOLVERS,
     FitError,
-    _metric,
     _Problem,
     _transform,
+    at_bound,
     covariance,
     solve,
 )
@@ -101,10 +117,15 @@ STEP_MAX = 2.0
 #: same whether it is active or padding, so a coarse ladder (x4) paid up to 4x for a chunk.
 MIN_BUCKET = 16
 BUCKET_GROWTH = 2
+#: Largest number of lanes in one compiled call: a batch is solved in blocks of this many
+#: lanes (10,000 problems: 10 blocks of 1024), so one shape is compiled per batch size class.
+MAX_BLOCK = 1024
 #: Iterations per chunk for ``chunk_steps="auto"``: short chunks first (a chunk costs its lane
 #: count times its slowest member's steps; from the registry defaults the median GGX problem
 #: needs ~9 steps and the p90 ~16, measured), then longer ones for the few stragglers.
 CHUNK_SCHEDULE = (6, 3, 3, 4, 8, 16, 32)
+#: Lanes per group (see _grouped): each group of problems is stepped by its own while_loop.
+GROUP = 8
 
 
 @dataclasses.dataclass
@@ -125,14 +146,18 @@ class BatchFitResult:
     seconds: float
     rounds: list = dataclasses.field(default_factory=list)  # per chunk: lanes, active, seconds
     n_devices: int = 1
+    #: per free parameter, (B, ...) bool: the fitted value sits at an end of its interval
+    #: (:func:`brdf_fit.fit.at_bound`; its standard error means nothing there)
+    at_bound: dict = dataclasses.field(default_factory=dict)
 
     @property
     def batch_size(self) -> int:
         return int(self.converged.shape[0])
 
     def lane_steps(self) -> int:
-        """Solver iterations paid for (lanes x steps summed over chunks, padding included)."""
-        return int(sum(r["lanes"] * r["steps"] for r in self.rounds))
+        """Solver iterations paid for: per group, its lane count times the iterations its
+        while_loop ran, summed over groups and chunks (padding included)."""
+        return int(sum(r["lane_steps"] for r in self.rounds))
 
     def to_dict(self) -> dict:
         return {
@@ -150,6 +175,7 @@ class BatchFitResult:
             "seconds": round(self.seconds, 4),
             "rounds": self.rounds,
             "n_devices": self.n_devices,
+            "at_bound": {k: np.asarray(v).tolist() for k, v in self.at_bound.items()},
         }
 
 
@@ -167,35 +193,54 @@ def _resid_and_jac(problem, u, arrays, fixed):
     return r, J
 
 
-def _lm_state0(u, dtype):
-    p = u.shape[0]
-    return {
-        "u": u,
-        "lam": jnp.asarray(-1.0, dtype),  # < 0: not initialised (set from J at the first step)
-        "nu": jnp.asarray(2.0, dtype),
-        "scale": jnp.zeros(p, dtype),
-        "steps": jnp.asarray(0, jnp.int32),
-        "done": jnp.asarray(False),
-        "ok": jnp.asarray(False),
-    }
+def _quad(problem, u, a, fx):
+    """Loss and the normal-equation quantities ``(0.5 |r|^2, J^T J, J^T r)`` at ``u``: only
+    these ``p x p`` quantities are carried between iterations, never the ``(M C, p)`` Jacobian
+    (copying it every step made the loop memory-bound)."""
+    r, J = _resid_and_jac(problem, u, a, fx)
+    return 0.5 * jnp.sum(r * r), J.T @ J, J.T @ r
 
 
-def _lm_chunk(problem, rtol, atol, max_steps, n_steps, state, arrays, fixed):
-    """``n_steps`` batch-lm iterations on a batch (leading axis on every leaf): one while_loop
-    over the batch that stops as soon as all members are done."""
+def _grouped(fn, tree, group):
+    """Apply ``fn`` (which takes a batch of ``group`` lanes) to consecutive groups of ``group``
+    lanes of ``tree`` (leading axis a multiple of ``group``), one group after another
+    (``lax.map``), and return the results with the leading axis restored.
+
+    Why groups: one vmapped step over all B lanes materialises every intermediate of the
+    residual and its forward-mode tangents as a (B, M C) array (14 MB per array for 2,000
+    problems of 300 x 3 values): far larger than the caches, so the step was memory-bound.
+    Measured on this 2-core CPU (GGX, 300 samples, RGB): residual + Jacobian + normal equations
+    cost 147 us per problem vmapped over 2,000 problems, 62-67 us in groups of 8-32 and 110 us
+    one problem at a time (loop overhead)."""
+    lead = jax.tree.leaves(tree)[0].shape[0]
+    group = lead if group is None else group
+    k = lead // group
+    split = jax.tree.map(lambda x: x.reshape((k, group, *x.shape[1:])), tree)
+    out = jax.lax.map(fn, split)
+    return jax.tree.map(lambda x: x.reshape((k * group, *x.shape[2:])), out)
+
+
+def _lm_init(problem, group, u, arrays, fixed):
+    """The carried quad (see :func:`_quad`) at the starting point of every lane."""
+    def g(t):
+        uu, a, fx = t
+        return jax.vmap(lambda x, y, z: _quad(problem, x, y, z))(uu, a, fx)
+    return _grouped(g, (u, arrays, fixed), group)
+
+
+def _lm_chunk(problem, rtol, atol, max_steps, n_steps, group, state, arrays, fixed):
+    """Up to ``n_steps`` batch-lm iterations on a batch (leading axis on every leaf). The batch
+    is taken in groups of ``group`` lanes (see :func:`_grouped`); each group runs its own
+    while_loop, which stops as soon as all of *its* members are done: a converged problem costs
+    iterations only until the slowest member of its group stops, not of the whole batch."""
     dtype = state["u"].dtype
 
     def quad(u, a, fx):
-        # only the p x p normal-equation quantities are carried: the (M C, p) Jacobian itself
-        # never enters the loop state (copying it every step made the loop memory-bound)
-        r, J = _resid_and_jac(problem, u, a, fx)
-        return 0.5 * jnp.sum(r * r), J.T @ J, J.T @ r
+        return _quad(problem, u, a, fx)
 
-    q0 = jax.vmap(quad)(state["u"], arrays, fixed)
-
-    def one(s, q, a, fx):
+    def one(s, a, fx):
         active = ~s["done"] & (s["steps"] < max_steps)
-        cost, A, g = q
+        cost, A, g = s["cost"], s["A"], s["g"]
         d = jnp.diagonal(A)
         if MARQUARDT_SCALING:
             scale = jnp.maximum(s["scale"], d)
@@ -211,8 +256,7 @@ def _lm_chunk(problem, rtol, atol, max_steps, n_steps, state, arrays, fixed):
         # parameter pushed far past its bound lands on a plateau with zero gradient)
         du = du * jnp.minimum(1.0, STEP_MAX / jnp.maximum(jnp.sqrt(jnp.sum(du * du)), 1e-300))
         u_new = s["u"] + du
-        q_new = quad(u_new, a, fx)
-        cost_new = q_new[0]
+        cost_new, A_new, g_new = quad(u_new, a, fx)
         pred = -jnp.dot(g, du) - 0.5 * jnp.dot(du, A @ du)
         actual = cost - cost_new
         rho = jnp.where(pred > 0, actual / jnp.where(pred > 0, pred, 1.0), -1.0)
@@ -226,6 +270,7 @@ def _lm_chunk(problem, rtol, atol, max_steps, n_steps, state, arrays, fixed):
         cosine = jnp.abs(g) / jnp.maximum(jnp.sqrt(d * 2.0 * cost), 1e-300)
         conv = conv | (stuck & (jnp.max(cosine) < 10.0 * jnp.sqrt(jnp.finfo(dtype).eps)))
         fac = jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+        keep = accept & active
         new = {
             "u": jnp.where(accept, u_new, s["u"]),
             "lam": jnp.where(accept, lam * fac, lam * s["nu"]),
@@ -234,25 +279,33 @@ def _lm_chunk(problem, rtol, atol, max_steps, n_steps, state, arrays, fixed):
             "steps": s["steps"] + 1,
             "done": conv | stuck,
             "ok": conv,
+            "cost": jnp.where(keep, cost_new, cost),
+            "A": jnp.where(keep, A_new, A),
+            "g": jnp.where(keep, g_new, g),
         }
-        keep = accept & active
-        q_out = jax.tree.map(lambda n, o: jnp.where(keep, n, o), q_new, q)
-        out = jax.tree.map(lambda n, o: jnp.where(active, n, o), new, s)
-        return out, q_out
+        if "budget" in s:
+            new["budget"] = s["budget"]
+        return jax.tree.map(lambda n, o: jnp.where(active, n, o), new, s)
 
     one_b = jax.vmap(one)
 
-    def cond(c):
-        k, s, _ = c
-        return (k < n_steps) & jnp.any(~s["done"] & (s["steps"] < max_steps))
+    def run_group(t):
+        s, a, fx = t
 
-    def body(c):
-        k, s, q = c
-        s, q = one_b(s, q, arrays, fixed)
-        return k + 1, s, q
+        def cond(c):
+            k, s = c
+            # the chunk length travels with the lanes (every leaf is batch-sharded), so one
+            # compiled chunk serves every length of the schedule
+            limit = jnp.max(s["budget"]) if n_steps is None else n_steps
+            return (k < limit) & jnp.any(~s["done"] & (s["steps"] < max_steps))
 
-    _, state, _ = jax.lax.while_loop(cond, body, (jnp.asarray(0), state, q0))
-    return state
+        def body(c):
+            k, s = c
+            return k + 1, one_b(s, a, fx)
+
+        return jax.lax.while_loop(cond, body, (jnp.asarray(0), s))[1]
+
+    return _grouped(run_group, (state, arrays, fixed), group)
 
 
 def _optx_chunk(problem, solver, rtol, atol, max_steps, n_steps, state, arrays, fixed):
@@ -273,86 +326,90 @@ def _optx_chunk(problem, solver, rtol, atol, max_steps, n_steps, state, arrays, 
 
 
 def _finalise_one(problem, u, arrays, fixed):
+    """Physical parameters, standard errors (fit()'s estimator: pooled s^2 with sigma, HC1
+    sandwich without), loss, residual rms and used-sample count at the final ``u``. The residual
+    and its Jacobian come from one forward-mode pass in the physical parameters."""
     prob = dataclasses.replace(problem, fixed=fixed)
     phys = prob.unflatten(u)
     free = prob.free
     flat = jnp.concatenate([jnp.ravel(phys[n]) for n in free]) if free else jnp.zeros(0, u.dtype)
 
-    def resid_phys(x):  # as fit(): residuals as a function of the free physical parameters
-        out, k = {}, 0
-        for name, shape in zip(free, prob.shapes, strict=True):
-            size = int(np.prod(shape)) if shape else 1
-            out[name] = x[k:k + size].reshape(shape)
-            k += size
-        model_ = prob.entry.build(**{**fixed, **out})
-        wi, wo, f, w, sigma, floor = arrays
-        m = model_.eval(wi, wo)
-        m = jnp.broadcast_to(m if m.ndim == 2 else m[:, None], f.shape)
-        r = _metric(prob.metric, m, f, wi[:, 2:3], sigma, w, floor)
-        return (r * wi[:, 2:3] if prob.cos_weight else r).reshape(-1)
+    def f(x):
+        r = prob.residuals_phys(x, arrays)
+        return r, r
 
-    r_u = prob.residuals(u, arrays)
-    loss = 0.5 * jnp.sum(r_u * r_u)
-    r = resid_phys(flat)
-    rms = jnp.sqrt(jnp.mean(r * r))
     w = arrays[3]
     m_eff = jnp.sum(w.reshape(-1) > 0)
     p = flat.shape[0]
     if p:
-        J = jax.jacfwd(resid_phys)(flat)
-        # fit()'s estimator: pooled s^2 with sigma, HC1 sandwich without
+        J, r = jax.jacfwd(f, has_aux=True)(flat)
         cov = covariance(J, r, m_eff.astype(u.dtype), sandwich=arrays[4] is None)
         se = jnp.sqrt(jnp.maximum(jnp.diagonal(cov), 0.0))
     else:
+        r = prob.residuals_phys(flat, arrays)
         se = jnp.zeros(0, u.dtype)
+    loss = 0.5 * jnp.sum(r * r)
+    rms = jnp.sqrt(jnp.mean(r * r))
     return phys, se, loss, rms, jnp.sum(jnp.any(w > 0, axis=-1))
 
 
 # ----------------------------------------------------------------------------- driver
 
 
-def _bucket(n: int, ndev: int) -> int:
+def _bucket(n: int, unit: int) -> int:
     b = MIN_BUCKET
     while b < n:
         b *= BUCKET_GROWTH
-    return int(math.ceil(b / ndev) * ndev)
+    return int(math.ceil(b / unit) * unit)
 
 
 class _Runner:
     """Jitted (optionally shard_mapped) chunk and finalise functions, cached per shape."""
 
-    def __init__(self, problem, solver, rtol, atol, max_steps, shard):
+    def __init__(self, problem, solver, rtol, atol, max_steps, shard, group):
         self.devices = jax.devices() if shard else jax.devices()[:1]
         self.ndev = len(self.devices)
         self.mesh = Mesh(np.asarray(self.devices), ("batch",)) if self.ndev > 1 else None
+        self.group = group
+        self.solver = solver
+        #: lane counts are multiples of this (every device holds whole groups)
+        self.unit = (group or 1) * self.ndev
         if solver == "batch-lm":
             def chunk(n_steps, s, a, fx):
-                return _lm_chunk(problem, rtol, atol, max_steps, n_steps, s, a, fx)
+                return _lm_chunk(problem, rtol, atol, max_steps, n_steps, group, s, a, fx)
         else:
             def chunk(n_steps, s, a, fx):
                 return _optx_chunk(problem, solver, rtol, atol, max_steps, n_steps, s, a, fx)
 
         def fin(u, a, fx):
-            return jax.vmap(lambda uu, aa, ff: _finalise_one(problem, uu, aa, ff))(u, a, fx)
+            one = jax.vmap(lambda uu, aa, ff: _finalise_one(problem, uu, aa, ff))
+            return _grouped(lambda t: one(*t), (u, a, fx), group)
+
+        def init(u, a, fx):
+            return _lm_init(problem, group, u, a, fx)
+
+        self._guess = {}
+        self._problem = problem
 
         self._chunk = {}
         self._raw_chunk = chunk
-        if self.mesh is not None:
-            spec = P("batch")
-            self._fin = jax.jit(jax.shard_map(fin, mesh=self.mesh, in_specs=spec,
-                                              out_specs=spec, check_vma=False))
-        else:
-            self._fin = jax.jit(fin)
+        self._fin = self._compile(fin)
+        self._init = self._compile(init)
+
+    def _compile(self, fn):
+        if self.mesh is None:
+            return jax.jit(fn)
+        spec = P("batch")
+        return jax.jit(jax.shard_map(fn, mesh=self.mesh, in_specs=spec, out_specs=spec,
+                                     check_vma=False))
 
     def chunk(self, n_steps):
+        if self.solver == "batch-lm":  # the length is data (state["budget"]), not static
+            n_steps = None
         fn = self._chunk.get(n_steps)
         if fn is None:
-            body = lambda s, a, fx: self._raw_chunk(n_steps, s, a, fx)
-            if self.mesh is not None:
-                spec = P("batch")
-                body = jax.shard_map(body, mesh=self.mesh, in_specs=spec, out_specs=spec,
-                                     check_vma=False)
-            fn = self._chunk[n_steps] = jax.jit(body)
+            fn = self._chunk[n_steps] = self._compile(
+                lambda s, a, fx: self._raw_chunk(n_steps, s, a, fx))
         return fn
 
     def put(self, tree):
@@ -364,6 +421,30 @@ class _Runner:
     def finalise(self, u, arrays, fixed):
         return self._fin(u, arrays, fixed)
 
+    def init(self, u, arrays, fixed):
+        return self._init(u, arrays, fixed)
+
+    def guess(self, lay, chan_of):
+        """Compiled: per lane, the start :func:`brdf_fit.guess.pick` chooses from its
+        candidates (losses per channel on the subsample)."""
+        key = (lay, tuple(int(c) for c in chan_of))
+        fn = self._guess.get(key)
+        if fn is None:
+            problem, group = self._problem, self.group
+
+            def best(c, a, fx):
+                prob = dataclasses.replace(problem, fixed=fx)
+                C = a[2].shape[-1]
+                L = jax.vmap(lambda uu: jnp.sum(
+                    prob.residuals(uu, a).reshape(-1, C) ** 2, axis=0))(c)
+                return _guess.pick(jnp, c, 0.5 * L, lay, chan_of)
+
+            def guess(c, a, fx):
+                return _grouped(lambda t: jax.vmap(best)(*t), (c, a, fx), group)
+
+            fn = self._guess[key] = self._compile(guess)
+        return fn
+
 
 _RUNNERS: dict = {}
 #: Runners (and so their compiled chunks) kept for reuse by later calls with the same static
@@ -371,15 +452,15 @@ _RUNNERS: dict = {}
 MAX_RUNNERS = 8
 
 
-def _runner(problem, solver, rtol, atol, max_steps, shard):
+def _runner(problem, solver, rtol, atol, max_steps, shard, group):
     key = (problem.entry.name, problem.free, problem.shapes, problem.transforms, problem.metric,
            problem.cos_weight, solver, float(rtol), float(atol), int(max_steps), shard,
-           len(jax.devices()))
+           len(jax.devices()), group)
     r = _RUNNERS.get(key)
     if r is None:
         if len(_RUNNERS) >= MAX_RUNNERS:
             _RUNNERS.pop(next(iter(_RUNNERS)))
-        r = _RUNNERS[key] = _Runner(problem, solver, rtol, atol, max_steps, shard)
+        r = _RUNNERS[key] = _Runner(problem, solver, rtol, atol, max_steps, shard, group)
     return r
 
 
@@ -413,40 +494,68 @@ def _batched_values(entry, spec, B, C, what):
     return out
 
 
-def _run_chunks(runner, state, arrays, fixed, schedule, max_steps, solver, single, rounds):
-    """Solve chunk after chunk, compacting the unfinished problems between chunks; ``state``
-    (numpy arrays, leading axis B) is updated in place and one record per chunk is appended to
-    ``rounds``."""
+def _blocked(runner, fn, idx, block, inputs):
+    """``fn`` on the lanes ``idx`` in consecutive blocks of ``block`` lanes (the last one padded
+    by repeating a real lane), so that every call has the same shape and compiles once;
+    ``inputs(pad, n)`` builds the (numpy) argument trees of a block from its lane indices
+    ``pad`` of which the first ``n`` are real. Returns the outputs of the real lanes, in order,
+    as numpy arrays. The blocks are dispatched before any result is read (JAX runs them
+    asynchronously)."""
+    outs = []
+    for s0 in range(0, idx.size, block):
+        part = idx[s0:s0 + block]
+        n = part.size
+        pad = np.concatenate([part, np.full(block - n, part[0])])
+        outs.append((fn(*(runner.put(a) for a in inputs(pad, n))), n))
+    res = [jax.tree.map(lambda x, n=n: np.asarray(x)[:n], o) for o, n in outs]
+    return jax.tree.map(lambda *xs: np.concatenate(xs), *res)
+
+
+def _run_chunks(runner, state, arrays, fixed, schedule, max_steps, solver, single, rounds,
+                block, progress=None):
+    """Solve chunk after chunk, compacting the unfinished problems between chunks (in blocks
+    of ``block`` lanes); ``state`` (numpy arrays, leading axis B) is updated in place and one
+    record per chunk is appended to ``rounds``."""
     B = state["u"].shape[0]
-    ndev = runner.ndev
     idx = np.arange(B)
-    full = int(math.ceil(B / ndev) * ndev)
     k_chunk = 0
     while True:
         active = idx[~state["done"] & (state["steps"] < max_steps)]
         if active.size == 0:
             break
         n = active.size
-        lanes = full if k_chunk == 0 else min(_bucket(n, ndev), full)
-        pad = np.concatenate([active, np.full(lanes - n, active[0])])
         n_steps = schedule[min(k_chunk, len(schedule) - 1)]
         if solver != "batch-lm":  # restarted solves: never run past a member's budget
             n_steps = int(min(n_steps, max_steps - state["steps"][active].max()))
             n_steps = max(n_steps, 1)
         ts = time.perf_counter()
         before = state["steps"][active].copy()
-        sub = runner.put(_take(state, pad))
-        sub_a = runner.put(tuple(None if a is None else a[pad] for a in arrays))
-        sub_f = runner.put({k: v[pad] for k, v in fixed.items()})
-        out = jax.tree.map(np.asarray, runner.chunk(n_steps)(sub, sub_a, sub_f))
+
+        def inputs(pad, m, n_steps=n_steps):
+            sub = _take(state, pad)
+            sub["done"] = sub["done"].copy()
+            sub["done"][m:] = True  # padding lanes: a group of padding alone stops at once
+            sub["budget"] = np.full(pad.size, n_steps, np.int32)
+            return (sub, tuple(None if a is None else a[pad] for a in arrays),
+                    {k: v[pad] for k, v in fixed.items()})
+
+        out = _blocked(runner, runner.chunk(n_steps), active, block, inputs)
         for k in state:
-            state[k][active] = out[k][:n]
-        # iterations this chunk's while_loop ran (its slowest lane), paid by every lane
-        rec = {"lanes": int(lanes), "active": int(n),
-               "steps": int(np.max(state["steps"][active] - before)),
+            state[k][active] = out[k]
+        lanes = int(math.ceil(n / block) * block)
+        # iterations each group's while_loop ran (its slowest lane), paid by all its lanes
+        ran = np.zeros(lanes, int)
+        ran[:n] = state["steps"][active] - before
+        g = runner.group or block
+        per_group = ran.reshape(-1, g).max(axis=1)
+        rec = {"lanes": lanes, "active": int(n), "steps": int(per_group.max()),
+               "lane_steps": int(per_group.sum() * g),
                "seconds": round(time.perf_counter() - ts, 4)}
         rounds.append(rec)
         k_chunk += 1
+        if progress is not None:
+            progress(int(np.sum(state["done"] | (state["steps"] >= max_steps))), B,
+                     f"chunk {k_chunk}")
         if single:
             break
 
@@ -468,7 +577,10 @@ def fit_batch(
     rtol: float = 1e-10,
     atol: float = 1e-10,
     chunk_steps: int | str | None = "auto",
+    group: int | None = GROUP,
+    guess: str = "grid",
     shard: bool | None = None,
+    progress=None,
     dtype: Any = None,
 ) -> BatchFitResult:
     """Fit registry model ``model`` to B datasets at once.
@@ -478,9 +590,13 @@ def fit_batch(
     B; see :func:`_batched_values`). ``max_zenith_deg`` masks samples (weight 0) instead of
     dropping them, so the sample count stays M. ``chunk_steps``: iterations per chunk before
     the stragglers are compacted (``"auto"``: the lengths of :data:`CHUNK_SCHEDULE`, then its
-    last; None: one chunk of ``max_steps``, i.e. a plain vmapped solve). ``shard``: lay the
-    batch over all ``jax.devices()`` (default False: see the known problems in the module
-    docstring). ``dtype``: of the arrays and the solve (default: JAX's default float).
+    last; None: one chunk of ``max_steps``). ``group``: lanes per while_loop (None: the whole
+    block; with ``chunk_steps=None`` that is one plain vmapped solve). ``guess``: ``"grid"``
+    or ``"none"`` (see :mod:`brdf_fit.guess`); ``max_steps=0`` returns the start itself.
+    ``shard``: lay the batch over all ``jax.devices()`` (default: when there are several).
+    ``progress``: called as ``progress(finished, B, stage)`` at the start and after every
+    chunk (the CLI's progress bar). ``dtype``: of the arrays and the solve (default: JAX's
+    default float).
     """
     from . import registry
 
@@ -490,6 +606,8 @@ def fit_batch(
         raise FitError(f"unknown metric {metric!r}; valid metrics: {', '.join(METRICS)}")
     if solver not in BATCH_SOLVERS:
         raise FitError(f"unknown solver {solver!r}; valid solvers: {', '.join(BATCH_SOLVERS)}")
+    if guess not in _guess.GUESSES:
+        raise FitError(f"unknown guess {guess!r}; valid: {', '.join(_guess.GUESSES)}")
     dtype = jnp.zeros(()).dtype if dtype is None else jnp.dtype(dtype)
     wi = np.asarray(wi, float)
     wo = np.asarray(wo, float)
@@ -537,7 +655,7 @@ def fit_batch(
     fixed = {k: v.astype(dtype) for k, v in fixed.items()}
 
     if shard is None:
-        shard = False  # opt-in: sharded runs hung / disagreed on large batches (module docstring)
+        shard = len(jax.devices()) > 1
     p = u0.shape[1]
     state = {
         "u": u0.astype(dtype),
@@ -558,20 +676,52 @@ def fit_batch(
         raise FitError(f"chunk_steps must be 'auto', None or an int, got {chunk_steps!r}")
     schedule = tuple(max(1, min(int(c), max_steps)) for c in schedule)
     rounds = []
-    runner = _runner(problem, solver, rtol, atol, max_steps, bool(shard))
+    if group is not None and (not isinstance(group, int | np.integer) or group < 1):
+        raise FitError(f"group must be a positive int or None, got {group!r}")
+    runner = _runner(problem, solver, rtol, atol, max_steps, bool(shard),
+                     None if group is None else int(group))
     ndev = runner.ndev
+    unit = runner.unit
+    # one block shape per call (compiled once): the whole batch without groups (a plain
+    # vmapped solve), else the batch's bucket up to MAX_BLOCK lanes
+    block = (int(math.ceil(B / unit) * unit) if group is None
+             else min(_bucket(MAX_BLOCK, unit), _bucket(B, unit)))
+    every = np.arange(B)
+
+    def whole(u):
+        return lambda pad, n: (u[pad], tuple(None if a is None else a[pad] for a in arrays),
+                               {k: v[pad] for k, v in fixed.items()})
+
+    vary = tuple(n for n in free if n not in init) if guess == "grid" else ()
+    if vary:  # coarse design over the parameters without a start value (brdf_fit.guess)
+        ts = time.perf_counter()
+        cands = _guess.design(problem, state["u"], vary, defaults).astype(dtype)
+        lay = _guess.layout(problem, vary)
+        chan_of = _guess.channel_index(problem, C)
+        sub = _guess.subsample(M)
+        sub_arrays = tuple(None if a is None else (a[:, sub] if a.ndim > 1 else a)
+                           for a in arrays)
+        state["u"] = _blocked(runner, runner.guess(lay, chan_of), every, block, lambda pad, n: (
+            cands[pad], tuple(None if a is None else a[pad] for a in sub_arrays),
+            {k: v[pad] for k, v in fixed.items()}))
+        rounds.append({"lanes": int(math.ceil(B / block) * block), "active": B, "steps": 0,
+                       "guess": True, "candidates": int(cands.shape[1]),
+                       "samples": int(sub.size), "lane_steps": 0,
+                       "seconds": round(time.perf_counter() - ts, 4)})
+    if solver == "batch-lm":  # the carried loss and normal equations at the start
+        ts = time.perf_counter()
+        q = _blocked(runner, runner.init, every, block, whole(state["u"]))
+        state["cost"], state["A"], state["g"] = (np.array(x) for x in q)
+        rounds.append({"lanes": int(math.ceil(B / block) * block), "active": B, "steps": 0,
+                       "init": True, "lane_steps": 0,
+                       "seconds": round(time.perf_counter() - ts, 4)})
+    if progress is not None:
+        progress(0, B, "start")
     _run_chunks(runner, state, arrays, fixed, schedule, max_steps, solver,
-                chunk_steps is None, rounds)
-    idx = np.arange(B)
+                chunk_steps is None, rounds, block, progress)
     ts = time.perf_counter()
-    lanes = int(math.ceil(B / ndev) * ndev)
-    pad = np.concatenate([idx, np.zeros(lanes - B, int)])
-    phys, se, loss, rms, nused = runner.finalise(
-        runner.put(state["u"][pad]), runner.put(tuple(None if a is None else a[pad]
-                                                      for a in arrays)),
-        runner.put({k: v[pad] for k, v in fixed.items()}))
-    phys, se, loss, rms, nused = jax.tree.map(lambda x: np.asarray(x)[:B],
-                                             (phys, se, loss, rms, nused))
+    phys, se, loss, rms, nused = _blocked(runner, runner.finalise, every, block,
+                                          whole(state["u"]))
     stderr, k = {}, 0
     for name, shape in zip(free, problem.shapes, strict=True):
         size = int(np.prod(shape)) if shape else 1
@@ -580,7 +730,8 @@ def fit_batch(
     params = {name: (np.asarray(phys[name]) if name in phys else fixed[name])
               for name in entry.param_names}
     params = {name: np.broadcast_to(v, (B, *np.shape(v)[1:])) for name, v in params.items()}
-    rounds.append({"lanes": lanes, "active": B, "steps": 0, "finalise": True,
+    rounds.append({"lanes": int(math.ceil(B / block) * block), "active": B, "steps": 0,
+                   "finalise": True, "lane_steps": 0,
                    "seconds": round(time.perf_counter() - ts, 4)})
     return BatchFitResult(
         model_name=entry.name,
@@ -597,4 +748,5 @@ def fit_batch(
         seconds=time.perf_counter() - t0,
         rounds=rounds,
         n_devices=ndev,
+        at_bound={n: at_bound(entry.param(n), params[n]) for n in free},
     )

@@ -89,7 +89,7 @@ def test_round_trip_csv(csv_data, capsys):
     fields = FitResult.__dataclass_fields__
     assert set(r) == {"model", "params", "stderr", "fixed", "converged", "steps", "metric",
                       "loss", "residual_rms", "n_samples", "n_params", "seconds", "starts",
-                      "message", "checks"}
+                      "message", "checks", "at_bound"}
     assert {"model_name", "params", "stderr", "converged", "metric", "residual_rms"} <= set(fields)
     assert r["model"] == "ggx" and r["metric"] == "log" and r["n_params"] == 4
     for k, v in TRUTH.items():
@@ -244,3 +244,36 @@ def test_demo(tmp_path, capsys):
                 assert fh.read(8) == b"\x89PNG\r\n\x1a\n"
     else:
         assert doc["plots"] == [] and "matplotlib" in doc["plot_note"]
+
+
+def test_fit_batch_command(csv_data, tmp_path, capsys):
+    """fit-batch over several files: JSON per file, a CSV table with one row per file, a
+    progress bar on stderr; an unreadable file stops it before any fitting (exit 2, naming the
+    file and line) unless --skip-bad, which fits the rest and exits 1."""
+    other = dict(RECIPE, params={"alpha": 0.4, "f0": [0.2, 0.3, 0.4]}, seed=4)
+    recipe = tmp_path / "r2.json"
+    recipe.write_text(json.dumps(other), encoding="utf-8")
+    second = tmp_path / "second.csv"
+    assert main(["synth", str(recipe), "-o", str(second)]) == 0
+    capsys.readouterr()
+    table = tmp_path / "out.csv"
+    assert main(["fit-batch", str(csv_data), str(second), "--model", "ggx", "--json",
+                 "--out", str(table)]) == 0
+    cap = capsys.readouterr()
+    doc = json.loads(cap.out)
+    assert [r["file"] for r in doc["results"]] == [str(csv_data), str(second)]
+    np.testing.assert_allclose(doc["results"][0]["params"]["alpha"], 0.23, rtol=1e-7)
+    np.testing.assert_allclose(doc["results"][1]["params"]["f0"], [0.2, 0.3, 0.4], rtol=1e-7)
+    assert all(r["converged"] and r["at_bound"] == [] for r in doc["results"])
+    assert "chunk 1" in cap.err and "2/2" in cap.err
+    rows = table.read_text().splitlines()
+    assert len(rows) == 3 and rows[0].startswith("file,converged,steps,residual_rms")
+    assert "f0_r" in rows[0] and "stderr_alpha" in rows[0]
+    bad = tmp_path / "bad.csv"
+    bad.write_text("theta_i,phi_i,theta_o,phi_o,brdf\n95,0,10,0,0.1\n")
+    assert main(["fit-batch", str(csv_data), str(bad), "--model", "ggx", "--quiet"]) == 2
+    one_line_error(capsys, "bad.csv", "line 2", "theta_i", "--skip-bad")
+    assert main(["fit-batch", str(csv_data), str(bad), "--model", "ggx", "--quiet",
+                 "--skip-bad"]) == 1
+    out = capsys.readouterr().out
+    assert "skipped:" in out and "bad.csv" in out and "yes" in out

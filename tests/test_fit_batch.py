@@ -53,7 +53,7 @@ def test_batch_equals_single_fits(noise):
     wi, wo, v = batch(TRUTHS, noise=noise, seed=1)
     r = fit_batch(wi, wo, v, "ggx", chunk_steps=8)  # small chunks: compaction is exercised
     assert r.converged.all() and r.params["f0"].shape == (4, 3)
-    assert len([x for x in r.rounds if not x.get("finalise")]) > 1
+    assert len([x for x in r.rounds if not (x.get("finalise") or x.get("init"))]) > 1
     for b in range(len(TRUTHS)):
         s = single(wi, wo, v, b)
         assert s.converged
@@ -94,7 +94,7 @@ def test_straggler_is_resolved_and_easy_problems_unchanged():
     r = fit_batch(wi, wo, v, "ggx", init={"alpha": init_a, "f0": init_f}, **kw)
     assert r.converged.all()
     assert r.steps[0] > 8 and r.steps[1:].max() <= 4
-    chunks = [x for x in r.rounds if not x.get("finalise")]
+    chunks = [x for x in r.rounds if not (x.get("finalise") or x.get("init"))]
     assert chunks[0]["active"] == 8 and chunks[1]["active"] == 1  # only the straggler goes on
     np.testing.assert_array_equal(r.steps[1:], easy.steps)
     np.testing.assert_allclose(r.params["f0"][1:], easy.params["f0"], rtol=0, atol=1e-12)
@@ -102,7 +102,7 @@ def test_straggler_is_resolved_and_easy_problems_unchanged():
     np.testing.assert_allclose(r.params["alpha"][0], s.params["alpha"], rtol=0, atol=1e-6)
     # the same answer as a single unchunked vmapped solve, at the same per-problem step counts
     plain = fit_batch(wi, wo, v, "ggx", init={"alpha": init_a, "f0": init_f}, rtol=1e-6,
-                      atol=1e-6, chunk_steps=None)
+                      atol=1e-6, chunk_steps=None, group=None)
     np.testing.assert_array_equal(plain.steps, r.steps)
     np.testing.assert_allclose(plain.params["f0"], r.params["f0"], rtol=0, atol=1e-12)
 
@@ -173,3 +173,46 @@ def test_sharded_on_two_host_devices(tmp_path):
     np.testing.assert_allclose(sh["f0"], un["f0"], rtol=0, atol=1e-8)
     r = fit_batch(wi, wo, v, "ggx", chunk_steps=8)  # and this process (1 device) agrees
     np.testing.assert_allclose(sh["f0"], r.params["f0"], rtol=0, atol=1e-8)
+
+
+def test_grid_guess_starts_no_worse_and_reaches_the_same_optimum():
+    """guess="grid" (default) vs guess="none" (registry defaults): the same optimum; the grid's
+    start has a loss no higher than the defaults' (the defaults are one of its candidates)."""
+    from brdf_fit import guess as G
+
+    truths = [(0.05, [0.9, 0.9, 0.9]), (0.7, [0.1, 0.1, 0.1]), (0.3, [0.5, 0.4, 0.3])]
+    wi, wo, v = batch(truths, noise=0.01, seed=7)
+    grid = fit_batch(wi, wo, v, "ggx")
+    none = fit_batch(wi, wo, v, "ggx", guess="none")
+    assert grid.converged.all() and none.converged.all()
+    np.testing.assert_allclose(grid.params["alpha"], none.params["alpha"], rtol=1e-6)
+    np.testing.assert_allclose(grid.params["f0"], none.params["f0"], rtol=0, atol=1e-6)
+    assert [r for r in grid.rounds if r.get("guess")][0]["candidates"] == G.GUESS_CANDIDATES
+    assert not [r for r in none.rounds if r.get("guess")]
+    start_grid = fit_batch(wi, wo, v, "ggx", max_steps=0)  # no iterations: the start itself
+    start_none = fit_batch(wi, wo, v, "ggx", max_steps=0, guess="none")
+    np.testing.assert_allclose(start_none.params["alpha"], 0.3)
+    sub = G.subsample(wi.shape[1])
+    for b in range(3):  # compare on the subsample the guess was chosen on
+        ls = [fit_batch(wi[b:b + 1, sub], wo[b:b + 1, sub], v[b:b + 1, sub], "ggx",
+                        init={k: s.params[k][b:b + 1] for k in ("alpha", "f0")},
+                        max_steps=0).loss[0] for s in (start_grid, start_none)]
+        assert ls[0] <= ls[1] * (1 + 1e-12)
+    with pytest.raises(FitError, match="unknown guess"):
+        fit_batch(wi, wo, v, "ggx", guess="moments")
+
+
+def test_at_bound_flags_and_progress():
+    """An f0 channel whose data need reflectance > 1 ends at the bound and is flagged; the
+    progress callback sees the start, every chunk, and all problems finished at the end."""
+    wi, wo, v = batch([(0.2, [0.5, 0.5, 0.5]), (0.2, [0.5, 0.5, 0.5])], seed=8)
+    v[1, :, 0] *= 4.0  # red needs F > 1 at every angle: f0_r runs to 1
+    calls = []
+    r = fit_batch(wi, wo, v, "ggx", progress=lambda d, t, s: calls.append((d, t, s)))
+    assert r.at_bound["alpha"].tolist() == [False, False]
+    assert r.at_bound["f0"].tolist() == [[False] * 3, [True, False, False]]
+    assert r.to_dict()["at_bound"]["f0"][1] == [True, False, False]
+    assert calls[0] == (0, 2, "start") and calls[-1][:2] == (2, 2)
+    assert [c[2] for c in calls[1:]] == [f"chunk {k}" for k in range(1, len(calls))]
+    data = GonioData(wi=wi[1], wo=wo[1], value=v[1], channels=("R", "G", "B"))
+    assert fit(data, "ggx").at_bound == ("f0",)
