@@ -11,12 +11,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _helpers import assert_gradient_matches_fd
+from _helpers import eval_jit as _eval
+from _helpers import vec as _dir
 
 from brdf_fit import ParameterError, checks, quadrature, registry
 from brdf_fit.microfacet import Beckmann
 from brdf_fit.models.cook_torrance_1982 import CookTorrance1982Specular, beckmann_ct1982
 
-_eval = jax.jit(lambda m, wi, wo: m.eval(wi, wo))
 ENTRY = registry.get("cook-torrance-1982")
 
 
@@ -24,10 +26,6 @@ def _angles(rng, n, lo=0.02):
     th = np.arccos(rng.uniform(lo, 1.0, n))
     ph = rng.uniform(0, 2 * np.pi, n)
     return th, ph
-
-
-def _dir(th, ph):
-    return np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], -1)
 
 
 def ct_fresnel(c, eta):
@@ -131,17 +129,7 @@ def test_gradients_match_finite_differences():
 
     p0 = {k: jnp.asarray(v) for k, v in PARAMS.items()}
     g = jax.jit(jax.grad(f))(p0)
-    for k, v in PARAMS.items():
-        flat = np.atleast_1d(np.asarray(v, float))
-        for j in range(flat.size):
-            h = 1e-6
-            up, dn = flat.copy(), flat.copy()
-            up[j] += h
-            dn[j] -= h
-            sh = np.shape(v)
-            fd = (float(f({**p0, k: jnp.asarray(up.reshape(sh))}))
-                  - float(f({**p0, k: jnp.asarray(dn.reshape(sh))}))) / (2 * h)
-            assert float(np.atleast_1d(g[k])[j]) == pytest.approx(fd, rel=1e-6, abs=1e-9), (k, j)
+    assert_gradient_matches_fd(f, g, PARAMS, rel=1e-6, abs=1e-9)
 
 
 @pytest.mark.parametrize("bad,name", [({"s": 1.5}, "'s'"), ({"alpha": -0.1}, "'alpha'"),

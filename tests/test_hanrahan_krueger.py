@@ -16,6 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _helpers import assert_gradient_matches_fd, eval_jit
 
 from brdf_fit import checks, quadrature, registry
 from brdf_fit._validate import ParameterError
@@ -90,7 +91,7 @@ def test_matches_depth_quadrature_reference(case, saf):
     rng = np.random.default_rng(10)
     wi, wo = dirs(rng, 300), dirs(rng, 300)
     m = HanrahanKrueger(**{k: jnp.asarray(v) for k, v in case.items()}, solid_angle_factor=saf)
-    got = np.asarray(m.eval(jnp.asarray(wi), jnp.asarray(wo)))
+    got = np.asarray(eval_jit(m, jnp.asarray(wi), jnp.asarray(wo)))
     want = reference(wi, wo, **case, solid_angle_factor=saf)
     nz = want > 0
     if case["eta"] < 1:
@@ -106,7 +107,7 @@ def test_semi_infinite_limit_is_chandrasekhar_single_scattering():
     wi, wo = dirs(rng, 200), dirs(rng, 200)
     for eta, g in ((1.0, 0.0), (1.0, 0.5), (1.5, -0.4)):
         m = HanrahanKrueger(albedo=0.9, tau=1e3, g=g, eta=eta)
-        got = np.asarray(m.eval(jnp.asarray(wi), jnp.asarray(wo)))
+        got = np.asarray(eval_jit(m, jnp.asarray(wi), jnp.asarray(wo)))
         ti, pi_ = _angles(wi)
         to, po = _angles(wo)
         tti, tto = np.arcsin(np.sin(ti) / eta), np.arcsin(np.sin(to) / eta)
@@ -135,7 +136,7 @@ def test_thin_layer_limit():
     wi, wo = dirs(rng, 100, lo=0.1), dirs(rng, 100, lo=0.1)
     tau, eta, g = 1e-9, 1.3, 0.4
     m = HanrahanKrueger(albedo=1.0, tau=tau, g=g, eta=eta)
-    got = np.asarray(m.eval(jnp.asarray(wi), jnp.asarray(wo)))
+    got = np.asarray(eval_jit(m, jnp.asarray(wi), jnp.asarray(wo)))
     ref_thick = reference(wi, wo, 1.0, 1.0, g, eta)[:, 0]  # phase, T and cosines as reference
     ti, to = _angles(wi)[0], _angles(wo)[0]
     mi = np.cos(np.arcsin(np.sin(ti) / eta))
@@ -212,16 +213,7 @@ def test_gradients_match_finite_differences():
         return jnp.sum(entry.build(**p).eval(wi, wo) * jnp.asarray([1.0, 2.0, 3.0]))
 
     g = jax.jit(jax.grad(f))({k: jnp.asarray(v) for k, v in p0.items()})
-    for k, v in p0.items():
-        flat = np.atleast_1d(v).astype(float)
-        for j in range(flat.size):
-            h = 1e-6
-            up, dn = flat.copy(), flat.copy()
-            up[j] += h
-            dn[j] -= h
-            fd = (float(f({**p0, k: up.reshape(np.shape(v))}))
-                  - float(f({**p0, k: dn.reshape(np.shape(v))}))) / (2 * h)
-            assert float(np.atleast_1d(g[k])[j]) == pytest.approx(fd, rel=1e-6, abs=1e-10), (k, j)
+    assert_gradient_matches_fd(f, g, p0, rel=1e-6, abs=1e-10)
 
 
 @pytest.mark.parametrize("dtype", [jnp.float64, jnp.float32], ids=["f64", "f32"])
@@ -255,8 +247,9 @@ def test_float32_agrees():
     m32 = astype(m64, jnp.float32)
     rng = np.random.default_rng(14)
     wi, wo = dirs(rng, 64, lo=0.01), dirs(rng, 64, lo=0.01)
-    f32 = m32.eval(jnp.asarray(wi, jnp.float32), jnp.asarray(wo, jnp.float32))
-    np.testing.assert_allclose(f32, m64.eval(jnp.asarray(wi), jnp.asarray(wo)), rtol=2e-5)
+    f32 = eval_jit(m32, jnp.asarray(wi, jnp.float32), jnp.asarray(wo, jnp.float32))
+    assert f32.dtype == jnp.float32
+    np.testing.assert_allclose(f32, eval_jit(m64, jnp.asarray(wi), jnp.asarray(wo)), rtol=2e-5)
 
 
 @pytest.mark.parametrize("bad,match", [
@@ -282,4 +275,4 @@ def test_registry_entry():
     assert m.channels() == 3
     wi = jnp.asarray(_unit(0.7, 0.2))
     wo = jnp.asarray(_unit(0.6, 2.5))
-    assert np.all(np.asarray(m.eval(wi, wo)) > 0)
+    assert np.all(np.asarray(eval_jit(m, wi, wo)) > 0)

@@ -14,6 +14,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _helpers import assert_gradient_matches_fd
+from _helpers import eval_cos_jit as _eval_cos
 from scipy.optimize import brentq
 from scipy.special import erfc, expi, gammaln, logsumexp
 
@@ -46,11 +48,6 @@ def _eval(m, wi, wo):
     n = wi.shape[0]
     pad = jnp.broadcast_to(jnp.asarray([0.0, 0.0, 1.0]), (N_PAIRS - n, 3))
     return _eval_jit(m, jnp.concatenate([wi, pad]), jnp.concatenate([wo, pad]))[:n]
-
-
-@jax.jit
-def _eval_cos(m, wi, wo):
-    return m.eval_cos(wi, wo)
 
 
 def random_dirs(rng, n, lo=1e-2):
@@ -210,16 +207,7 @@ def test_gradients_match_finite_differences_rough():
         return vg({k: jnp.asarray(v) for k, v in p.items()})[0]
 
     g = vg({k: jnp.asarray(v) for k, v in p0.items()})[1]
-    for k, v in p0.items():
-        flat = np.atleast_1d(v)
-        for j in range(flat.size):
-            h = 1e-6 * max(1.0, abs(flat[j]))
-            up, dn = flat.copy(), flat.copy()
-            up[j] += h
-            dn[j] -= h
-            fd = (float(f({**p0, k: up.reshape(v.shape)})) - float(f({**p0, k: dn.reshape(
-                v.shape)}))) / (2 * h)
-            assert float(np.atleast_1d(g[k])[j]) == pytest.approx(fd, rel=1e-6, abs=1e-9), (k, j)
+    assert_gradient_matches_fd(f, g, p0, rel=1e-6, abs=1e-9, relative_step=True)
 
 
 @pytest.mark.parametrize("dtype", [jnp.float64, jnp.float32], ids=["f64", "f32"])

@@ -11,17 +11,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _helpers import assert_gradient_matches_fd
+from _helpers import eval_jit as _eval
+from _helpers import vec as _dir
 from scipy import integrate
 
 from brdf_fit import ParameterError, quadrature, registry
 from brdf_fit.models.kelemen import Kelemen, albedo_table, specular_albedo
 
-_eval = jax.jit(lambda m, wi, wo: m.eval(wi, wo))
+# jitted once for the file (eager, every call dispatched the table's and the interpolant's ops)
+_specular_albedo = jax.jit(specular_albedo)
 ENTRY = registry.get("kelemen")
-
-
-def _dir(th, ph):
-    return np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], -1)
 
 
 def spec_reference(wi, wo, f0, m):
@@ -52,7 +52,7 @@ def a_s_scipy(mu, f0, m):
 def test_albedo_table_matches_scipy(mu):
     """The in-JAX table (interpolated) against SciPy: measured agreement ~1e-6 at alpha = 0.3."""
     f0, m = 0.3, 0.3
-    got = float(specular_albedo(m, f0, jnp.asarray(mu)))
+    got = float(_specular_albedo(m, f0, jnp.asarray(mu)))
     want = a_s_scipy(mu, f0, m)
     assert got == pytest.approx(want, abs=5e-6)
     assert 0 < want < 1
@@ -79,9 +79,9 @@ def test_matte_term_is_the_coupling():
     matte = np.asarray(_eval(m, wi, wo)) - np.asarray(_eval(s, wi, wo))
     x, w = np.polynomial.legendre.leggauss(64)
     mu = 0.5 * (x + 1)
-    a_bar = float(np.sum(0.5 * w * 2 * mu * np.asarray(specular_albedo(al, f0, jnp.asarray(mu)))))
-    al_ = np.asarray(specular_albedo(al, f0, wi[:, 2]))
-    av_ = np.asarray(specular_albedo(al, f0, wo[:, 2]))
+    a_bar = float(np.sum(0.5 * w * 2 * mu * np.asarray(_specular_albedo(al, f0, jnp.asarray(mu)))))
+    al_ = np.asarray(_specular_albedo(al, f0, wi[:, 2]))
+    av_ = np.asarray(_specular_albedo(al, f0, wo[:, 2]))
     np.testing.assert_allclose(matte, rho * (1 - al_) * (1 - av_) / (np.pi * (1 - a_bar)),
                                rtol=1e-6)
 
@@ -97,7 +97,7 @@ def test_energy_conserving_and_white_matte_reaches_the_bound(alpha):
         e_white = float(quadrature.directional_albedo(white, wo))
         e_grey = float(quadrature.directional_albedo(grey, wo))
         assert e_white == pytest.approx(1.0, abs=1e-5)
-        a_s = float(specular_albedo(alpha, 0.04, jnp.asarray(c)))
+        a_s = float(_specular_albedo(alpha, 0.04, jnp.asarray(c)))
         assert e_grey == pytest.approx(a_s + 0.5 * (1 - a_s), abs=1e-5)
 
 
@@ -124,17 +124,7 @@ def test_gradients_match_finite_differences():
 
     p0 = {k: jnp.asarray(v) for k, v in params.items()}
     g = jax.jit(jax.grad(f))(p0)
-    for k, v in params.items():
-        flat = np.atleast_1d(np.asarray(v, float))
-        for j in range(flat.size):
-            h = 1e-6
-            up, dn = flat.copy(), flat.copy()
-            up[j] += h
-            dn[j] -= h
-            sh = np.shape(v)
-            fd = (float(f({**p0, k: jnp.asarray(up.reshape(sh))}))
-                  - float(f({**p0, k: jnp.asarray(dn.reshape(sh))}))) / (2 * h)
-            assert float(np.atleast_1d(g[k])[j]) == pytest.approx(fd, rel=1e-5, abs=1e-9), (k, j)
+    assert_gradient_matches_fd(f, g, params, rel=1e-5, abs=1e-9)
 
 
 @pytest.mark.parametrize("bad,name", [({"rho_m": [0.5, 1.2, 0.1]}, "'rho_m'"),

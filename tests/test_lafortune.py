@@ -14,6 +14,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _helpers import draw_jit as _draw
+from _helpers import eval_cos_jit, pdf_jit
+from _helpers import eval_jit as _eval
+from _helpers import pdf_jit as _pdf
 
 from brdf_fit import ParameterError, checks, registry
 from brdf_fit.chi2 import chi2_test_brdf
@@ -33,22 +37,6 @@ def _random_upper(rng, n, lo=1e-3):
     phi = rng.uniform(0, 2 * np.pi, n)
     s = np.sqrt(1 - mu * mu)
     return np.stack([s * np.cos(phi), s * np.sin(phi), mu], -1)
-
-
-@jax.jit
-def _eval(model, wi, wo):
-    return model.eval(wi, wo)
-
-
-@jax.jit
-def _pdf(model, wi, wo):
-    return model.pdf(wi, wo)
-
-
-@jax.jit
-def _draw(model, wo, uc, u):
-    s = model.sample(jnp.broadcast_to(wo, u.shape[:-1] + (3,)), uc, u)
-    return s.wi, s.pdf, s.weight
 
 
 LOBES = [(-1.0, -0.8, 0.9, 15.0, (1.0, 0.8, 0.6)), (0.7, 0.3, 0.5, 3.0, (0.5, 0.5, 0.5)),
@@ -97,7 +85,7 @@ def test_phong_special_case_is_modified_phong(n):
 
 def _brute(model, wo):
     rule = gauss_legendre_hemisphere(1024, 2048)
-    return np.asarray(integrate(lambda wi: model.eval_cos(wi, jnp.asarray(wo)), rule))
+    return np.asarray(integrate(lambda wi: eval_cos_jit(model, wi, jnp.asarray(wo)), rule))
 
 
 @pytest.mark.parametrize("cx, cy, cz, n", [(-0.7, 0.4, 0.9, 5.0), (0.3, 0.3, 1.05, 40.0)])
@@ -164,7 +152,7 @@ def test_pdf_and_weights():
     assert np.all(np.isfinite(w)) and np.all(w[pdf == 0] == 0)
     p_fail = float(np.mean(pdf == 0))
     rule = gauss_legendre_hemisphere(512, 1024)
-    integral = float(integrate(lambda x: m.pdf(x, jnp.asarray(wo)), rule))
+    integral = float(integrate(lambda x: pdf_jit(m, x, jnp.asarray(wo)), rule))
     assert abs(integral - (1 - p_fail)) < 5 * math.sqrt(p_fail * (1 - p_fail) / n)
     E = _brute(m, wo)
     assert np.all(np.abs(w.mean(0) - E) < 5 * w.std(0) / math.sqrt(n))
@@ -190,11 +178,15 @@ def _loss(p, wi, wo, uc, u):
 _value_and_grad = jax.jit(jax.value_and_grad(_loss))
 
 
+GRAD_PAIRS = 200
+
+
 def test_gradients_match_finite_differences():
     rng = np.random.default_rng(3)
-    wo = _random_upper(rng, 200, lo=0.05)
-    wi = _random_upper(rng, 200, lo=0.05)
-    args = tuple(jnp.asarray(a) for a in (wi, wo, rng.random(200), rng.random((200, 2))))
+    wo = _random_upper(rng, GRAD_PAIRS, lo=0.05)
+    wi = _random_upper(rng, GRAD_PAIRS, lo=0.05)
+    args = tuple(jnp.asarray(a) for a in (wi, wo, rng.random(GRAD_PAIRS),
+                                          rng.random((GRAD_PAIRS, 2))))
     p = {k: jnp.asarray(v) for k, v in ENTRY.defaults().items()}
     _, g = _value_and_grad(p, *args)
     eps = 1e-6
@@ -214,6 +206,9 @@ def test_extremes_finite():
     dirs = [_dir(c, p) for c in cos for p in (0.3, 0.3 + math.pi)] + [np.array([0.0, 0.0, 1.0])]
     wi = np.array([a for a in dirs for _ in dirs])
     wo = np.array([b for _ in dirs for b in dirs])
+    # the 81 pairs repeated to the 200 of test_gradients_match_finite_differences: the float64
+    # case then reuses that test's compilation of _value_and_grad
+    wi, wo = np.resize(wi, (GRAD_PAIRS, 3)), np.resize(wo, (GRAD_PAIRS, 3))
     n = wi.shape[0]
     u = np.stack([np.linspace(0, 1 - 2**-24, n), np.linspace(1 - 2**-24, 0, n)], -1)
     uc = np.linspace(0, 1 - 2**-24, n)

@@ -14,6 +14,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _helpers import eval_jit as _eval
+from _helpers import pdf_jit as _pdf
+from _helpers import vec as _dirs
 
 from brdf_fit import checks
 from brdf_fit._validate import ParameterError
@@ -22,22 +25,8 @@ from brdf_fit.models.lewis import Lewis, registry_entries
 from brdf_fit.models.phong import ModifiedPhong
 
 
-@jax.jit
-def _eval(model, wi, wo):
-    return model.eval(wi, wo)
-
-
-@jax.jit
-def _pdf(model, wi, wo):
-    return model.pdf(wi, wo)
-
-
 def _angles(rng, n):
     return np.arccos(rng.uniform(1e-3, 1.0, n)), rng.uniform(0.0, 2 * np.pi, n)
-
-
-def _dirs(theta, phi):
-    return np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], -1)
 
 
 def lewis_reference(ti, pi_, to, po, kd, ks, n):

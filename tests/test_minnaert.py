@@ -14,6 +14,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _helpers import draw_jit as _draw
+from _helpers import eval_jit as _eval
+from _helpers import vec as _dirs
 
 from brdf_fit import checks
 from brdf_fit._validate import ParameterError
@@ -22,24 +25,9 @@ from brdf_fit.models import Lambert
 from brdf_fit.models.minnaert import Minnaert, registry_entries
 
 
-@jax.jit
-def _eval(model, wi, wo):
-    return model.eval(wi, wo)
-
-
-@jax.jit
-def _draw(model, wo, uc, u):
-    s = model.sample(jnp.broadcast_to(wo, u.shape[:-1] + (3,)), uc, u)
-    return s.wi, s.pdf, s.weight
-
-
 def _angles(rng, n):
     """Polar angles uniform in solid angle on the upper hemisphere (cos in [1e-3, 1])."""
     return np.arccos(rng.uniform(1e-3, 1.0, n)), rng.uniform(0.0, 2 * np.pi, n)
-
-
-def _dirs(theta, phi):
-    return np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], -1)
 
 
 def minnaert_reference(theta_i, theta_o, rho, k):

@@ -11,16 +11,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _helpers import assert_gradient_matches_fd, sample_jit
+from _helpers import eval_jit as _eval
+from _helpers import vec as _dir
 
 from brdf_fit import ParameterError, quadrature, registry
 from brdf_fit.models.neumann import NeumannPhong
 
-_eval = jax.jit(lambda m, wi, wo: m.eval(wi, wo))
 ENTRY = registry.get("neumann")
-
-
-def _dir(th, ph):
-    return np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], -1)
 
 
 def reference(thi, pi_, tho, po, rho_s, n):
@@ -97,7 +95,7 @@ def test_sample_weight_is_rho_times_cosine_ratio():
     m = NeumannPhong(rho_s=0.8, exponent=20.0)
     rng = np.random.default_rng(2)
     wo = jnp.broadcast_to(jnp.asarray([0.6, 0.0, 0.8]), (500, 3))
-    s = m.sample(wo, jnp.asarray(rng.random(500)), jnp.asarray(rng.random((500, 2))))
+    s = sample_jit(m, wo, jnp.asarray(rng.random(500)), jnp.asarray(rng.random((500, 2))))
     ok = np.asarray(s.pdf) > 0
     ratio = np.minimum(1.0, np.asarray(s.wi)[:, 2] / 0.8)
     np.testing.assert_allclose(np.asarray(s.weight)[ok], 0.8 * ratio[ok], rtol=1e-12)
@@ -115,17 +113,7 @@ def test_gradients_match_finite_differences():
 
     p0 = {k: jnp.asarray(v) for k, v in params.items()}
     g = jax.jit(jax.grad(f))(p0)
-    for k, v in params.items():
-        flat = np.atleast_1d(np.asarray(v, float))
-        for j in range(flat.size):
-            h = 1e-6
-            up, dn = flat.copy(), flat.copy()
-            up[j] += h
-            dn[j] -= h
-            sh = np.shape(v)
-            fd = (float(f({**p0, k: jnp.asarray(up.reshape(sh))}))
-                  - float(f({**p0, k: jnp.asarray(dn.reshape(sh))}))) / (2 * h)
-            assert float(np.atleast_1d(g[k])[j]) == pytest.approx(fd, rel=1e-6, abs=1e-9), (k, j)
+    assert_gradient_matches_fd(f, g, params, rel=1e-6, abs=1e-9)
 
 
 @pytest.mark.parametrize("bad,name", [({"rho_s": [0.5, 1.2, 0.1]}, "'rho_s'"),

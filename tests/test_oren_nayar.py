@@ -13,6 +13,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _helpers import eval_jit as _eval
+from _helpers import vec as _dirs
 
 from brdf_fit import checks
 from brdf_fit._validate import ParameterError
@@ -22,17 +24,8 @@ from brdf_fit.models.oren_nayar import OrenNayar, registry_entries
 VARIANTS = ("full", "qualitative")
 
 
-@jax.jit
-def _eval(model, wi, wo):
-    return model.eval(wi, wo)
-
-
 def _angles(rng, n):
     return np.arccos(rng.uniform(1e-3, 1.0, n)), rng.uniform(0.0, 2 * np.pi, n)
-
-
-def _dirs(theta, phi):
-    return np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], -1)
 
 
 def oren_nayar_reference(ti, pi_, tr, pr, rho, sigma, variant, clamp=True):
@@ -183,11 +176,15 @@ def test_gradients_match_finite_differences(variant):
     wi = jnp.asarray(_dirs(*_angles(rng, 16)))
     wo = jnp.asarray(_dirs(*_angles(rng, 16)))
 
+    # one jitted compilation serves the gradient and the finite differences (eager was slower)
+    vg = jax.jit(jax.value_and_grad(lambda p: jnp.sum(
+        OrenNayar(rho=p["rho"], sigma=p["sigma"], variant=variant).eval(wi, wo))))
+
     def f(p):
-        return jnp.sum(OrenNayar(rho=p["rho"], sigma=p["sigma"], variant=variant).eval(wi, wo))
+        return vg(p)[0]
 
     p0 = {"rho": jnp.asarray([0.7, 0.3]), "sigma": jnp.asarray(0.35)}
-    g = jax.grad(f)(p0)
+    g = vg(p0)[1]
     h = 1e-6
     fd = (f({**p0, "sigma": p0["sigma"] + h}) - f({**p0, "sigma": p0["sigma"] - h})) / (2 * h)
     assert float(g["sigma"]) == pytest.approx(float(fd), rel=1e-6)
@@ -207,12 +204,17 @@ def test_direction_gradients_finite_at_singular_points(dtype):
     wo = jnp.asarray([[0, 0, 1.0], [0.6, 0, 0.8], [-s, 0, c], [0.6, 0, 0.8], [s, 0, c]], dtype)
     for variant in VARIANTS:
         for sigma in (0.0, 0.3, 1.0):
-            def total(sig, a, b, variant=variant):
-                m = OrenNayar(rho=jnp.asarray(0.5, dtype), sigma=sig, variant=variant)
-                return jnp.sum(m.eval(a, b))
-
-            g = jax.grad(total, argnums=(0, 1, 2))(jnp.asarray(sigma, dtype), wi, wo)
+            g = _singular_grad(jnp.asarray(sigma, dtype), wi, wo, variant)
             assert all(np.all(np.isfinite(np.asarray(x))) for x in g), (variant, sigma)
+
+
+def _singular_total(sig, a, b, variant):
+    m = OrenNayar(rho=jnp.asarray(0.5, sig.dtype), sigma=sig, variant=variant)
+    return jnp.sum(m.eval(a, b))
+
+
+# jitted (one compilation per variant and dtype, shared by the three sigmas), not eager
+_singular_grad = jax.jit(jax.grad(_singular_total, argnums=(0, 1, 2)), static_argnums=3)
 
 
 def test_parameter_errors():

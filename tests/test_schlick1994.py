@@ -15,6 +15,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.special
+from _helpers import eval_cos_jit as _eval_cos
+from _helpers import eval_jit as _eval
+from _helpers import pdf_jit as _pdf
+from _helpers import sample_jit
+from _helpers import vec as _vec
 from _lobe_quadrature import halfvector_rule
 
 from brdf_fit import checks, registry
@@ -28,10 +33,6 @@ from brdf_fit.quadrature import directional_albedo
 
 def _angles(rng, n, lo=1e-3):
     return np.arccos(rng.uniform(lo, 1.0, n)), rng.uniform(-np.pi, np.pi, n)
-
-
-def _vec(theta, phi):
-    return np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], -1)
 
 
 def reference(theta_i, phi_i, theta_o, phi_o, C, r, p):
@@ -58,21 +59,6 @@ def reference(theta_i, phi_i, theta_o, phi_o, C, r, p):
     pd = r / (1 + r)
     pdf = pd * vp / np.pi + (1 - pd) * 2 * Z * t * p_phi / (4 * u)
     return S * D, pdf
-
-
-@jax.jit
-def _eval(m, wi, wo):
-    return m.eval(wi, wo)
-
-
-@jax.jit
-def _pdf(m, wi, wo):
-    return m.pdf(wi, wo)
-
-
-@jax.jit
-def _eval_cos(m, wi, wo):
-    return m.eval_cos(wi, wo)
 
 
 @pytest.mark.parametrize("r, p", [(0.1, 1.0), (0.02, 0.3), (0.7, 0.05), (1.0, 1.0)])
@@ -219,7 +205,7 @@ def test_extreme_parameters_finite():
             for c in (1e-7, 0.5, 1.0):
                 w = jnp.broadcast_to(jnp.asarray(_vec(np.array(math.acos(c)), np.array(0.4)), dt),
                                      (16, 3))
-                s = m.sample(w, jnp.linspace(0.0, 1 - 1e-7, 16, dtype=dt), u)
+                s = sample_jit(m, w, jnp.linspace(0.0, 1 - 1e-7, 16, dtype=dt), u)
                 for x in (s.wi, s.pdf, s.weight):
                     assert np.all(np.isfinite(np.asarray(x)))
                 assert np.all(np.asarray(s.weight)[np.asarray(s.pdf) == 0] == 0)

@@ -14,6 +14,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _helpers import eval_cos_jit as _eval_cos
+from _helpers import eval_jit as _eval
+from _helpers import sample_jit
+from _helpers import vec as _vec
 from _lobe_quadrature import gauss_hemisphere
 
 from brdf_fit import checks, registry
@@ -28,10 +32,6 @@ KF, KS, KJ = 1.12, 1.01, 0.1
 
 def _angles(rng, n, lo=1e-3):
     return np.arccos(rng.uniform(lo, 1.0, n)), rng.uniform(-np.pi, np.pi, n)
-
-
-def _vec(theta, phi):
-    return np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], -1)
 
 
 def reference(L, V, C, s, m, t=0.0):
@@ -57,16 +57,6 @@ def reference(L, V, C, s, m, t=0.0):
     Qd = nl[:, None] * d * rd * C[None]
     Qs = (rv ** (3 / (1 - s)) * rj)[:, None] * Cs
     return (Qd + Qs) / nl[:, None]
-
-
-@jax.jit
-def _eval(m, wi, wo):
-    return m.eval(wi, wo)
-
-
-@jax.jit
-def _eval_cos(m, wi, wo):
-    return m.eval_cos(wi, wo)
 
 
 @pytest.mark.parametrize("s, m, t", [(0.6, 0.3, 0.0), (0.0, 1.0, 0.0), (0.95, 0.8, 0.0),
@@ -182,7 +172,7 @@ def test_extreme_parameters_finite():
             for c in (1e-7, 0.5, 1.0):
                 w = jnp.broadcast_to(jnp.asarray(_vec(np.array(math.acos(c)), np.array(0.4)), dt),
                                      (16, 3))
-                smp = m.sample(w, jnp.linspace(0.0, 1 - 1e-7, 16, dtype=dt), u)
+                smp = sample_jit(m, w, jnp.linspace(0.0, 1 - 1e-7, 16, dtype=dt), u)
                 for x in (smp.wi, smp.pdf, smp.weight):
                     assert np.all(np.isfinite(np.asarray(x)))
     assert float(Strauss(smoothness=1.0).exponent()) == pytest.approx(1e6)

@@ -14,6 +14,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _helpers import draw_jit as _draw
+from _helpers import eval_jit as _eval
+from _helpers import pdf_jit as _pdf
 from scipy import integrate
 
 from brdf_fit import ParameterError, checks, registry
@@ -29,22 +32,6 @@ VARIANTS = ("ward", "duer", "balanced")
 def _dir(cos, phi=0.4):
     s = math.sqrt(max(0.0, 1.0 - cos * cos))
     return np.array([s * math.cos(phi), s * math.sin(phi), cos])
-
-
-@jax.jit
-def _eval(model, wi, wo):
-    return model.eval(wi, wo)
-
-
-@jax.jit
-def _pdf(model, wi, wo):
-    return model.pdf(wi, wo)
-
-
-@jax.jit
-def _draw(model, wo, uc, u):
-    s = model.sample(jnp.broadcast_to(wo, u.shape[:-1] + (3,)), uc, u)
-    return s.wi, s.pdf, s.weight
 
 
 def _albedo(model, wo):
