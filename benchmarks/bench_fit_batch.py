@@ -13,20 +13,24 @@ unconstrained parameterisation (:class:`brdf_fit.fit.Transform`).
 
 Timed (float64, x64 on):
 
-``batch``         ``fit_batch`` (solver ``batch-lm``, the default chunk schedule
-                  ``CHUNK_SCHEDULE`` = 6, 3, 3, 4, 8, 16, 32 steps, stragglers compacted),
-                  ``rtol = atol = 1e-8``; warm (second) call, the first call (with compilation)
-                  reported separately.
+``batch``         ``fit_batch`` with its defaults: the coarse grid guess (``brdf_fit.guess``),
+                  solver ``batch-lm``, the chunk schedule ``CHUNK_SCHEDULE`` (6, 3, 3, 4, 8,
+                  16, 32 steps, stragglers compacted between chunks) and groups of ``GROUP`` = 8
+                  lanes, each with its own while_loop; ``rtol = atol = 1e-8``; warm (second)
+                  call, the first call (with compilation) reported separately. One device: one
+                  core (the groups run one after another).
 ``batch-f32``     the same in float32 (``dtype=float32``), tolerances 1e-5.
-``vmap``          on ``--vmap-subset`` problems: one plain vmapped solve (``chunk_steps=None``)
-                  against the chunked one on the same subset: the cost of "runs until its
-                  slowest member converges".
+variants          on ``--vmap-subset`` problems: one plain vmapped solve (``chunk_steps=None,
+                  group=None``), chunks without groups, groups in one chunk, and the default:
+                  the cost of "a while_loop runs until its slowest member converges".
 ``scipy-trf`` /   ``scipy.optimize.least_squares(method=...)`` per problem (default tolerances
 ``scipy-lm``      ftol = xtol = gtol = 1e-8) on the same residual (``_Problem.residuals``) with
                   a jitted JAX residual and a jitted forward-mode JAX Jacobian (device-resident
                   data; faster than 2-point differences, measured while writing this), timed on a
                   random ``--scipy-subset`` of the problems and extrapolated linearly to all of
-                  them. The faster of the two is the baseline of the headline ratio.
+                  them; from the registry defaults and (``-grid``) from fit_batch's grid guess
+                  (its cost not counted). The fastest of the four is the baseline of the
+                  headline ratio.
 ``sharded``       ``fit_batch`` in a child process with
                   ``XLA_FLAGS=--xla_force_host_platform_device_count=2`` (2 host devices,
                   ``shard=True``), compared with the unsharded parameters.
@@ -63,6 +67,10 @@ from brdf_fit.fit import RELATIVE_FLOOR, _Problem, _transform  # noqa: E402
 from brdf_fit.fit_batch import fit_batch  # noqa: E402
 
 SEED = 20240611
+SCIPY = ("scipy-trf", "scipy-lm", "scipy-trf-grid", "scipy-lm-grid")
+#: straggler variants: name -> (chunk_steps, group)
+VARIANTS = {"vmap": (None, None), "chunked, ungrouped": ("auto", None),
+            "grouped, one chunk": (None, 8), "chunked + grouped (default)": ("auto", 8)}
 NOISE = 0.01
 
 
@@ -91,13 +99,27 @@ def run_batch(wi, wo, v, **kw):
     return r, time.perf_counter() - t
 
 
-def scipy_loop(wi, wo, v, idx, method):
+def _ggx_problem():
     entry = registry.get("ggx")
-    prob = _Problem(entry, ("alpha", "f0"), ((), (3,)),
+    return _Problem(entry, ("alpha", "f0"), ((), (3,)),
                     (_transform(entry.param("alpha")), _transform(entry.param("f0"))), {},
                     "log", False)
+
+
+def to_u(alpha, f0):
+    """(B,) alpha and (B, 3) f0 -> the solvers' unconstrained (B, 4) vectors."""
+    prob = _ggx_problem()
+    return np.concatenate([np.asarray(prob.transforms[0].inverse(alpha)).reshape(-1, 1),
+                           prob.transforms[1].inverse(f0)], axis=1)
+
+
+def scipy_loop(wi, wo, v, idx, method, u_start=None):
+    """``least_squares`` on problems ``idx``, from the registry defaults or from ``u_start``
+    (one unconstrained start per problem of ``idx``)."""
+    prob = _ggx_problem()
     u0 = np.concatenate([np.atleast_1d(prob.transforms[0].inverse(0.3)),
                          prob.transforms[1].inverse(np.full(3, 0.04))])
+    starts = np.broadcast_to(u0, (len(idx), 4)) if u_start is None else np.asarray(u_start)
     res = jax.jit(prob.residuals)
     jac = jax.jit(jax.jacfwd(prob.residuals))
     data = []
@@ -109,8 +131,8 @@ def scipy_loop(wi, wo, v, idx, method):
     np.asarray(res(jnp.asarray(u0), a)), np.asarray(jac(jnp.asarray(u0), a))
     out = {"u": [], "cost": [], "nfev": [], "njev": [], "status": []}
     t = time.perf_counter()
-    for a in data:
-        r = least_squares(lambda u, a=a: np.asarray(res(u, a)), u0,
+    for a, us in zip(data, starts, strict=True):
+        r = least_squares(lambda u, a=a: np.asarray(res(u, a)), us,
                           jac=lambda u, a=a: np.asarray(jac(u, a)), method=method)
         out["u"].append(r.x)
         out["cost"].append(r.cost)
@@ -220,12 +242,16 @@ def main(argv=None) -> int:
     print(f"  warm {dt_warm:.2f} s, cold {dt_cold:.2f} s", flush=True)
 
     print("scipy ...", flush=True)
-    sc = {}
-    for method in ("trf", "lm"):
-        s = scipy_loop(wi, wo, v, sub, method)
-        sc[method] = s
+    # the start fit_batch's solver begins from (its coarse grid guess, no iterations)
+    g = fit_batch(wi[sub], wo[sub], v[sub], "ggx", max_steps=0)
+    u_grid = to_u(g.params["alpha"], g.params["f0"])
+    for method, start in (("trf", "defaults"), ("lm", "defaults"), ("trf", "grid"),
+                          ("lm", "grid")):
+        name = f"scipy-{method}" + ("" if start == "defaults" else "-grid")
+        s = scipy_loop(wi, wo, v, sub, method, None if start == "defaults" else u_grid)
         rel = (r.loss[sub] - s["cost"]) / s["cost"]
-        res[f"scipy-{method}"] = {
+        res[name] = {
+            "method": method, "start": start,
             "seconds_subset": s["seconds"], "seconds_extrapolated": s["seconds"] * B / sub.size,
             "ms_per_problem": 1e3 * s["seconds"] / sub.size, "nfev_mean": float(s["nfev"].mean()),
             "njev_mean": float(s["njev"].mean()),
@@ -238,26 +264,29 @@ def main(argv=None) -> int:
                 "n_batch_worse_1e-9": int(np.sum(rel > 1e-9)),
                 "n_batch_better_1e-9": int(np.sum(rel < -1e-9))},
         }
-        print(f"  {method}: {s['seconds']:.2f} s for {sub.size}", flush=True)
-    base = min(("trf", "lm"), key=lambda m: res[f"scipy-{m}"]["seconds_extrapolated"])
-    res["baseline"] = f"scipy-{base}"
-    res["ratio_scipy_over_batch_warm"] = res[f"scipy-{base}"]["seconds_extrapolated"] / dt_warm
-    res["ratio_scipy_over_batch_cold"] = res[f"scipy-{base}"]["seconds_extrapolated"] / dt_cold
+        print(f"  {name}: {s['seconds']:.2f} s for {sub.size}", flush=True)
+    base = min(SCIPY, key=lambda m: res[m]["seconds_extrapolated"])
+    res["baseline"] = base
+    res["ratio_scipy_over_batch_warm"] = res[base]["seconds_extrapolated"] / dt_warm
+    res["ratio_scipy_over_batch_cold"] = res[base]["seconds_extrapolated"] / dt_cold
 
     print("plain vmap vs chunked on a subset ...", flush=True)
     vs = np.arange(min(args.vmap_subset, B))
     vk = dict(rtol=1e-8, atol=1e-8)
     out = {}
-    for name, cs in (("chunked", "auto"), ("chunked-32", 32), ("vmap", None)):
-        rr, _ = run_batch(wi[vs], wo[vs], v[vs], chunk_steps=cs, **vk)
-        rr, dtw = run_batch(wi[vs], wo[vs], v[vs], chunk_steps=cs, **vk)
+    for name, (cs, grp) in VARIANTS.items():
+        rr, _ = run_batch(wi[vs], wo[vs], v[vs], chunk_steps=cs, group=grp, **vk)
+        rr, dtw = run_batch(wi[vs], wo[vs], v[vs], chunk_steps=cs, group=grp, **vk)
         out[name] = {"seconds_warm": dtw, "lane_steps": rr.lane_steps(),
                      "sum_steps": int(rr.steps.sum()), "max_steps": int(rr.steps.max()),
                      "converged": float(rr.converged.mean()), "loss": rr.loss}
-    out["max_abs_loss_diff"] = float(np.max(np.abs(out["chunked"]["loss"] - out["vmap"]["loss"])))
-    for name in ("chunked", "chunked-32", "vmap"):
+        print(f"  {name}: {dtw:.2f} s", flush=True)
+    default = "chunked + grouped (default)"
+    out["max_abs_loss_diff"] = float(max(np.max(np.abs(out[n]["loss"] - out["vmap"]["loss"]))
+                                         for n in VARIANTS))
+    for name in VARIANTS:
         out[name].pop("loss")
-    out["ratio_vmap_over_chunked"] = out["vmap"]["seconds_warm"] / out["chunked"]["seconds_warm"]
+    out["ratio_vmap_over_chunked"] = out["vmap"]["seconds_warm"] / out[default]["seconds_warm"]
     out["problems"] = int(vs.size)
     res["vmap_vs_chunked"] = out
 
@@ -289,7 +318,7 @@ def main(argv=None) -> int:
     info["loadavg_end"] = _loadavg()
 
     # correctness gate: the batch must be at least as good as scipy on every subset problem
-    worst = max(res[f"scipy-{m}"]["batch_loss_rel_vs_scipy"]["max"] for m in ("trf", "lm"))
+    worst = max(res[m]["batch_loss_rel_vs_scipy"]["max"] for m in SCIPY)
     res["accuracy_ok"] = bool(worst <= 1e-6)
     (args.out / "fit_batch.json").write_text(json.dumps({"command": command, "machine": info,
                                                         **res}, indent=1))
@@ -316,17 +345,25 @@ def write_markdown(path, command, info, res):
          f"end {info['loadavg_end']}. **Other jobs shared this 2-core machine during the run**"
          f" when these are high; all methods ran in the same process, one after another.",
          f"- {res['problems']} problems, registry `ggx` (alpha + RGB f0 free), {res['samples']} "
-         f"direction pairs each, {100 * res['noise']:g}% lognormal noise, metric `log`, start "
-         f"at the registry defaults; seed {res['seed']}", "",
+         f"direction pairs each, {100 * res['noise']:g}% lognormal noise, metric `log`; seed "
+         f"{res['seed']}. fit_batch starts from its coarse grid guess (`brdf_fit.guess`, the "
+         "registry defaults among the candidates, included in its time); the scipy loops run "
+         "from the registry defaults (`scipy-trf`, `scipy-lm`) and from the same grid guess "
+         "(`-grid`, guess time not counted)", "",
          "## Headline", "",
          f"- `fit_batch` float64 (warm): **{b['seconds_warm']:.2f} s** for {res['problems']} "
          f"fits (first call, with compilation: {b['seconds_cold']:.2f} s); converged "
          f"{100 * b['converged']:.2f}%",
-         f"- baseline `{res['baseline']}` (jitted JAX residual + Jacobian), timed on "
+         f"- baseline: the fastest scipy loop, `{res['baseline']}` (jitted JAX residual + "
+         "Jacobian), timed on "
          f"{res['scipy_subset']} random problems and extrapolated linearly: "
          f"{base['seconds_extrapolated']:.1f} s ({base['ms_per_problem']:.2f} ms per fit)",
          f"- **speed ratio scipy / fit_batch: {res['ratio_scipy_over_batch_warm']:.1f}x warm, "
          f"{res['ratio_scipy_over_batch_cold']:.1f}x including compilation**",
+         *([f"- sharded over 2 host devices (`XLA_FLAGS=--xla_force_host_platform_device_count=2`"
+            f", `shard=True`, one device per core): **{res['sharded']['seconds_warm']:.2f} s**, "
+            f"**{base['seconds_extrapolated'] / res['sharded']['seconds_warm']:.1f}x** the "
+            f"baseline"] if "seconds_warm" in res.get("sharded", {}) else []),
          f"- accuracy gate (batch loss <= scipy loss (1 + 1e-6) on every subset problem): "
          f"{'passed' if res['accuracy_ok'] else 'FAILED'}", ""]
     L += ["## Accuracy", "",
@@ -334,17 +371,16 @@ def write_markdown(path, command, info, res):
           "(L_batch - L_scipy)/L_scipy on the scipy subset:", "",
           "| vs | median | max | min | batch worse (> 1e-9) | batch better (< -1e-9) |",
           "|---|---:|---:|---:|---:|---:|"]
-    for m in ("trf", "lm"):
-        d = res[f"scipy-{m}"]["batch_loss_rel_vs_scipy"]
-        L.append(f"| scipy-{m} | {_f(d['median'])} | {_f(d['max'])} | {_f(d['min'])} | "
+    for m in SCIPY:
+        d = res[m]["batch_loss_rel_vs_scipy"]
+        L.append(f"| {m} | {_f(d['median'])} | {_f(d['max'])} | {_f(d['min'])} | "
                  f"{d['n_batch_worse_1e-9']} | {d['n_batch_better_1e-9']} |")
     L += ["", "Error against the truth (alpha: relative; f0: absolute, per channel):", "",
           "| method | problems | alpha median | alpha p90 | alpha max | f0 median | f0 p90 | "
           "f0 max |", "|---|---:|---:|---:|---:|---:|---:|---:|"]
     rows = [("fit_batch f64", res["problems"], b["errors"]),
             ("fit_batch f64 (scipy subset)", res["scipy_subset"], b["errors_subset"])]
-    rows += [(f"scipy-{m}", res["scipy_subset"], res[f"scipy-{m}"]["errors"])
-             for m in ("trf", "lm")]
+    rows += [(m, res["scipy_subset"], res[m]["errors"]) for m in SCIPY]
     if "errors" in res.get("batch-f32", {}):
         rows.append(("fit_batch f32", res["problems"], res["batch-f32"]["errors"]))
     for name, n, e in rows:
@@ -381,9 +417,9 @@ def write_markdown(path, command, info, res):
                  f"{t1 / s['seconds_warm']:.2f}x; max abs diff vs unsharded: alpha "
                  f"{_f(s['max_abs_diff_alpha_vs_unsharded'])}, f0 "
                  f"{_f(s['max_abs_diff_f0_vs_unsharded'])} |")
-    for m in ("trf", "lm"):
-        d = res[f"scipy-{m}"]
-        L.append(f"| scipy-{m} (extrapolated from {res['scipy_subset']}) | "
+    for m in SCIPY:
+        d = res[m]
+        L.append(f"| {m} (from the {d['start']}; extrapolated from {res['scipy_subset']}) | "
                  f"{d['seconds_extrapolated']:.1f} | | {d['ms_per_problem']:.2f} | nfev "
                  f"{d['nfev_mean']:.1f}, njev {d['njev_mean']:.1f} per fit |")
     vv = res["vmap_vs_chunked"]
@@ -391,20 +427,30 @@ def write_markdown(path, command, info, res):
           f"On the first {vv['problems']} problems (warm calls):", "",
           "| variant | seconds | lane-steps paid | sum of steps | slowest member | converged |",
           "|---|---:|---:|---:|---:|---:|"]
-    for name in ("vmap", "chunked-32", "chunked"):
+    for name in VARIANTS:
         d = vv[name]
         L.append(f"| {name} | {d['seconds_warm']:.2f} | {d['lane_steps']} | {d['sum_steps']} |"
                  f" {d['max_steps']} | {100 * d['converged']:.2f}% |")
-    L += ["", f"vmap / chunked time: **{vv['ratio_vmap_over_chunked']:.2f}x**; max |loss "
-          f"difference| {_f(vv['max_abs_loss_diff'])} (batch-lm carries its state across "
-          "chunks, so the iterates are the same).", "",
-          f"Chunks of the full {res['problems']}-problem run (lanes = bucket size, steps = "
-          "iterations the chunk's while_loop ran):", "",
-          "| chunk | lanes | active | steps | seconds |", "|---:|---:|---:|---:|---:|"]
-    for i, rd in enumerate(b["rounds"]):
-        name = "finalise (stderr)" if rd.get("finalise") else str(i + 1)
+    L += ["", f"vmap / default time: **{vv['ratio_vmap_over_chunked']:.2f}x**; max |loss "
+          f"difference| vs vmap {_f(vv['max_abs_loss_diff'])} (batch-lm carries its state "
+          "across chunks, so the iterates are the same up to rounding).", "",
+          f"Rounds of the full {res['problems']}-problem run (lanes = bucket size; lane-steps ="
+          " per group of 8 lanes, 8 x the iterations its while_loop ran, summed):", "",
+          "| round | lanes | active | steps (slowest group) | lane-steps | seconds |",
+          "|---:|---:|---:|---:|---:|---:|"]
+    k = 0
+    for rd in b["rounds"]:
+        if rd.get("finalise"):
+            name = "finalise (stderr)"
+        elif rd.get("guess"):
+            name = f"guess ({rd['candidates']} candidates x {rd['samples']} samples)"
+        elif rd.get("init"):
+            name = "initial J^T J"
+        else:
+            k += 1
+            name = f"chunk {k}"
         L.append(f"| {name} | {rd['lanes']} | {rd['active']} | {rd['steps']} | "
-                 f"{rd['seconds']} |")
+                 f"{rd.get('lane_steps', '')} | {rd['seconds']} |")
     L += ["", "Raw numbers: `fit_batch.json`.", ""]
     path.write_text("\n".join(L))
 

@@ -539,14 +539,17 @@ def _run_chunks(runner, state, arrays, fixed, schedule, max_steps, solver, singl
             return (sub, tuple(None if a is None else a[pad] for a in arrays),
                     {k: v[pad] for k, v in fixed.items()})
 
-        out = _blocked(runner, runner.chunk(n_steps), active, block, inputs)
+        # without groups the whole block is one while_loop: shrink it to the stragglers'
+        # bucket (one more compile per bucket), else compaction would save nothing
+        blk = block if runner.group else min(block, _bucket(n, runner.unit))
+        out = _blocked(runner, runner.chunk(n_steps), active, blk, inputs)
         for k in state:
             state[k][active] = out[k]
-        lanes = int(math.ceil(n / block) * block)
+        lanes = int(math.ceil(n / blk) * blk)
         # iterations each group's while_loop ran (its slowest lane), paid by all its lanes
         ran = np.zeros(lanes, int)
         ran[:n] = state["steps"][active] - before
-        g = runner.group or block
+        g = runner.group or blk
         per_group = ran.reshape(-1, g).max(axis=1)
         rec = {"lanes": lanes, "active": int(n), "steps": int(per_group.max()),
                "lane_steps": int(per_group.sum() * g),
