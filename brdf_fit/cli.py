@@ -169,10 +169,13 @@ class _Progress:
         if not self.enabled:
             return
         self.done += 1
+        self.show(self.done - 1, self.done, self.total, f"{model}: {check}")
+
+    def show(self, filled_count: int, done: int, total: int, text: str) -> None:
+        """Write ``[bar] done/total text``, the bar filled to ``filled_count / total``."""
         width = 24
-        filled = int(width * (self.done - 1) / max(self.total, 1))
-        bar = "#" * filled + "-" * (width - filled)
-        msg = f"[{bar}] {self.done}/{self.total} {model}: {check}"
+        filled = int(width * filled_count / max(total, 1))
+        msg = f"[{'#' * filled}{'-' * (width - filled)}] {done}/{total} {text}"
         if self.tty:
             print("\r" + msg.ljust(78), end="", file=sys.stderr, flush=True)
         else:
@@ -391,27 +394,16 @@ def cmd_fit(args) -> int:
     return 0 if result.converged and not failed else 1
 
 
-class _BatchProgress:
-    """A bar of finished problems on stderr for fit_batch (rewritten in place on a terminal)."""
+class _BatchProgress(_Progress):
+    """A bar of finished problems on stderr for fit_batch's ``progress`` callback."""
 
     def __init__(self, label: str, enabled: bool = True):
-        self.label, self.enabled = label, enabled
-        self.tty = sys.stderr.isatty()
+        super().__init__(0, enabled)
+        self.label = label
 
     def __call__(self, done: int, total: int, stage: str) -> None:
-        if not self.enabled:
-            return
-        width = 24
-        filled = int(width * done / max(total, 1))
-        msg = f"[{'#' * filled}{'-' * (width - filled)}] {done}/{total} {self.label}: {stage}"
-        if self.tty:
-            print("\r" + msg.ljust(78), end="", file=sys.stderr, flush=True)
-        else:
-            print(msg, file=sys.stderr, flush=True)
-
-    def close(self) -> None:
-        if self.enabled and self.tty:
-            print("\r" + " " * 78 + "\r", end="", file=sys.stderr, flush=True)
+        if self.enabled:
+            self.show(done, done, total, f"{self.label}: {stage}")
 
 
 def _read_many(paths, skip_bad: bool):
