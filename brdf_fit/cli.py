@@ -7,7 +7,7 @@
     brdf-fit synth RECIPE -o FILE [--json]
     brdf-fit fit DATA --model NAME [--fix NAME=VALUE ...] [--init NAME=VALUE ...]
                  [--metric log|cuberoot|relative|absolute] [--solver NAME] [--max-zenith-deg X]
-                 [--multistart K] [--check NAME ...] [--json]
+                 [--guess grid|none] [--multistart K] [--check NAME ...] [--json]
     brdf-fit fit-batch DATA... --model NAME [--fix ...] [--init ...] [--metric ...]
                  [--guess grid|none] [--skip-bad] [--out FILE.csv|.json] [--json] [--quiet]
     brdf-fit demo [--out DIR] [--json]
@@ -385,7 +385,7 @@ def cmd_fit(args) -> int:
     result = fit(data, entry.name, fix=fix, init=init, metric=args.metric, solver=args.solver,
                  cos_weight=args.cos_weight, max_zenith_deg=args.max_zenith_deg,
                  multistart=args.multistart, seed=args.seed, max_steps=args.max_steps,
-                 checks=checks)
+                 checks=checks, guess=args.guess)
     if args.json:
         print(json.dumps(result.to_dict(), indent=2))
     else:
@@ -761,6 +761,24 @@ def cmd_convert(args) -> int:
     return 0 if all(r["converged"] for r in doc["rows"]) else 1
 
 
+def _fit_options(p, what: str) -> None:
+    """The options ``fit`` and ``fit-batch`` share (``what``: what the zenith cut does to a
+    sample, "drop" or "mask")."""
+    p.add_argument("--model", required=True, help="registry name (see 'brdf-fit models')")
+    p.add_argument("--fix", action="append", metavar="NAME=VALUE",
+                   help="hold a parameter at a value (comma-separated for channels); repeatable")
+    p.add_argument("--init", action="append", metavar="NAME=VALUE",
+                   help="start value of a parameter (default: see --guess); repeatable")
+    p.add_argument("--guess", default="grid", help="start of the parameters without --init: grid "
+                                                    "(default: a coarse design on a subsample) "
+                                                    "or none (the registry defaults)")
+    p.add_argument("--metric", default="log", help="log (default), cuberoot, relative, absolute")
+    p.add_argument("--max-zenith-deg", type=float, default=None,
+                   help=f"{what} samples with either direction beyond this zenith angle")
+    p.add_argument("--cos-weight", action="store_true", help="weight residuals by cos(theta_i)")
+    p.add_argument("--max-steps", type=int, default=256)
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="brdf-fit", description=__doc__.split("\n")[0])
     sub = p.add_subparsers(dest="command", required=True)
@@ -807,22 +825,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     f = sub.add_parser("fit", help="fit a registry model to measured data")
     f.add_argument("data", help="data file: .csv, .npz (or its .json sidecar), MERL .binary")
-    f.add_argument("--model", required=True, help="registry name (see 'brdf-fit models')")
-    f.add_argument("--fix", action="append", metavar="NAME=VALUE",
-                   help="hold a parameter at a value (comma-separated for channels); repeatable")
-    f.add_argument("--init", action="append", metavar="NAME=VALUE",
-                   help="start value of a parameter (default: the registry default); repeatable")
-    f.add_argument("--metric", default="log", help="log (default), cuberoot, relative, absolute")
+    _fit_options(f, what="drop")
     f.add_argument("--solver", default="lm",
                    help="lm (default), levenberg-marquardt, gauss-newton, gauss-newton-plain, "
                         "dogleg")
-    f.add_argument("--max-zenith-deg", type=float, default=None,
-                   help="drop samples with either direction beyond this zenith angle")
-    f.add_argument("--cos-weight", action="store_true", help="weight residuals by cos(theta_i)")
     f.add_argument("--multistart", type=int, default=1, metavar="K",
                    help="K starts (the first from --init, the others perturbed); best loss wins")
     f.add_argument("--seed", type=int, default=0, help="seed of multistart and --max-samples")
-    f.add_argument("--max-steps", type=int, default=256)
     f.add_argument("--max-samples", type=int, default=None, metavar="N",
                    help="fit a seeded random subset of N samples (e.g. of a MERL file)")
     f.add_argument("--check", action="append", metavar="NAME",
@@ -834,18 +843,7 @@ def build_parser() -> argparse.ArgumentParser:
                                           "(brdf_fit.fit_batch)")
     fb.add_argument("data", nargs="+", help="data files (.csv, .npz, MERL .binary); files with "
                                             "equal sample counts are fitted in one batch")
-    fb.add_argument("--model", required=True, help="registry name (see 'brdf-fit models')")
-    fb.add_argument("--fix", action="append", metavar="NAME=VALUE",
-                    help="hold a parameter at a value for every file; repeatable")
-    fb.add_argument("--init", action="append", metavar="NAME=VALUE",
-                    help="start value of a parameter (default: the grid guess); repeatable")
-    fb.add_argument("--metric", default="log", help="log (default), cuberoot, relative, absolute")
-    fb.add_argument("--max-zenith-deg", type=float, default=None,
-                    help="mask samples with either direction beyond this zenith angle")
-    fb.add_argument("--cos-weight", action="store_true", help="weight residuals by cos(theta_i)")
-    fb.add_argument("--max-steps", type=int, default=256)
-    fb.add_argument("--guess", default="grid", help="grid (default: coarse design on a subsample)"
-                                                     " or none (registry defaults)")
+    _fit_options(fb, what="mask")
     fb.add_argument("--skip-bad", action="store_true",
                     help="fit the readable files and list the unreadable ones (default: stop)")
     fb.add_argument("--out", default=None, metavar="FILE",
