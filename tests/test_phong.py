@@ -14,6 +14,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _helpers import eval_cos_jit as _eval_cos
+from _helpers import eval_jit as _eval
+from _helpers import pdf_jit as _pdf
 
 from brdf_fit import checks, convert_phong
 from brdf_fit._validate import ParameterError
@@ -103,19 +106,6 @@ def _width(n):
     return 1.0 / math.sqrt(n + 1.0)
 
 
-@jax.jit
-def _eval(model, wi, wo):
-    return model.eval(wi, wo)
-
-
-@jax.jit
-def _pdf(model, wi, wo):
-    return model.pdf(wi, wo)
-
-
-@jax.jit
-def _eval_cos(model, wi, wo):
-    return model.eval_cos(wi, wo)
 
 
 @jax.jit
