@@ -175,6 +175,50 @@ def _metric(name, m, f, c, sigma, w, floor):
     return g * jnp.sqrt(w)
 
 
+#: The metrics as ``g(m) = h(m * mul) - g(f)`` (see :func:`_metric_parts`).
+_METRIC_H = {"log": jnp.log1p, "cuberoot": jnp.cbrt, "relative": lambda x: x,
+             "absolute": lambda x: x}
+
+
+def _metric_parts(name, f, c, sigma, w, floor, cos_weight):
+    """The data side of :func:`_metric`, computed once (NumPy): ``(mul, gf, scale)`` such that
+    the residual is ``(h(m * mul) - gf) * scale`` with ``h`` = :data:`_METRIC_H` [name]
+    (log: ``h = log1p``, ``mul = cos``; cube root: ``h = cbrt``; relative: ``mul = 1/den``;
+    absolute: identity), ``gf = h(f * mul)``, and ``scale`` the weight (``sqrt(w)``, or
+    ``1/(g'(f) sigma)`` where ``w > 0``) times ``cos`` with ``cos_weight``. Equal to
+    :func:`_metric` up to rounding (relative: ``m/den - f/den`` for ``(m - f)/den``). The
+    batch solver evaluates its residual this way: the data terms (for ``log``, half of the
+    transcendental calls) are no longer recomputed at every iteration. ``f``, ``w``, ``sigma``
+    (or None): (..., M, C); ``c``: (..., M, 1); ``floor``: (...,). ``mul`` is (..., M, 1)
+    except for ``relative`` (..., M, C)."""
+    f = np.asarray(f, float)
+    floor = np.asarray(floor, float)[..., None, None]
+    one = np.ones_like(f)
+    if name == "log":
+        mul = c
+        gf = np.log1p(f * c)
+        dg = c / (1.0 + f * c)
+    elif name == "cuberoot":
+        mul, gf = np.ones_like(c), np.cbrt(f)
+        dg = 1.0 / (3.0 * np.cbrt(np.maximum(f, floor)) ** 2)
+    elif name == "relative":
+        den = np.maximum(f, floor)
+        mul = 1.0 / den
+        gf, dg = f * mul, mul
+    elif name == "absolute":
+        mul, gf, dg = np.ones_like(c), f, one
+    else:  # pragma: no cover - validated earlier
+        raise FitError(name)
+    if sigma is not None:
+        with np.errstate(divide="ignore"):
+            scale = np.where(w > 0, 1.0 / np.maximum(dg * sigma, 1e-300), 0.0)
+    else:
+        scale = np.sqrt(w)
+    if cos_weight:
+        scale = scale * c
+    return mul, gf, scale
+
+
 @dataclasses.dataclass(frozen=True)
 class _Problem:
     """Static description of a fit: which parameters are free, their shapes and transforms."""
@@ -220,18 +264,45 @@ class _Problem:
         """Residuals as a function of the unconstrained flat ``u`` (what the solvers see)."""
         return self.residuals_at(self.unflatten(u), arrays)
 
+    def prepare(self, arrays):
+        """NumPy ``arrays`` (wi, wo, f, w, sigma, floor; leading batch axes allowed) -> the
+        prepared tuple ``(wi, wo, mul, gf, scale)`` of :meth:`residuals_prepared`."""
+        wi, wo, f, w, sigma, floor = (None if a is None else np.asarray(a, float)
+                                      for a in arrays)
+        mul, gf, scale = _metric_parts(self.metric, f, wi[..., 2:3], sigma, w, floor,
+                                       self.cos_weight)
+        return wi, wo, mul, gf, scale
+
+    def residuals_prepared(self, params, prep):
+        """Residuals ``(M, C)`` (not flattened) of the model built from ``params`` (all,
+        physical) on prepared data (:meth:`prepare`): :meth:`residuals_at` up to rounding."""
+        wi, wo, mul, gf, scale = prep
+        m = self.entry.build(**params).eval(wi, wo)
+        if m.ndim == 1:
+            m = m[:, None]
+        return (_METRIC_H[self.metric](m * mul) - gf) * scale
+
+    def physical(self, parts):
+        """{free name: unconstrained value} -> all physical parameters (fixed ones included)."""
+        out = {name: tr.forward(parts[name])
+               for name, tr in zip(self.free, self.transforms, strict=True)}
+        return {**self.fixed, **out}
+
     def residuals_phys(self, x, arrays):
         """Residuals as a function of the flat free *physical* parameters (for standard
         errors: the Jacobian in the parameters the user reads)."""
         return self.residuals_at({**self.fixed, **self.split(x)}, arrays)
 
 
-def solve(problem: _Problem, u0, arrays, solver="lm", rtol=1e-10, atol=1e-10, max_steps=256):
+def solve(problem: _Problem, u0, arrays, solver="lm", rtol=1e-10, atol=1e-10, max_steps=256,
+          residuals=None):
     """Pure-JAX least-squares solve from ``u0``; returns ``(u, converged, steps)`` (``u`` is
-    differentiable with respect to ``arrays`` by optimistix's implicit adjoint)."""
+    differentiable with respect to ``arrays`` by optimistix's implicit adjoint).
+    ``residuals(u, arrays)``: the flat residual (default :meth:`_Problem.residuals`)."""
     cls = SOLVERS[solver]
+    res = problem.residuals if residuals is None else residuals
     sol = optx.least_squares(
-        lambda u, a: problem.residuals(u, a), cls(rtol=rtol, atol=atol), u0, args=arrays,
+        lambda u, a: res(u, a), cls(rtol=rtol, atol=atol), u0, args=arrays,
         max_steps=max_steps, throw=False,
     )
     return sol.value, sol.result == optx.RESULTS.successful, sol.stats["num_steps"]
@@ -294,14 +365,22 @@ def covariance(J, r, m_eff, sandwich: bool):
     the optimum, ``m_eff`` samples that carry weight (see the module docstring): ``sandwich=False``
     ``s^2 (J^T J)^+`` with ``s^2 = RSS/(m_eff - p)``; ``sandwich=True`` the HC1 estimator
     ``m_eff/(m_eff - p) (J^T J)^+ (J^T diag(r^2) J) (J^T J)^+``. NumPy or JAX arrays (jit/vmap)."""
-    xp = jnp if isinstance(J, jax.Array) or isinstance(r, jax.Array) else np
-    p = J.shape[-1]
-    dof = max(int(m_eff) - p, 1) if isinstance(m_eff, int) else xp.maximum(m_eff - p, 1)
-    bread = xp.linalg.pinv(J.T @ J)
-    if not sandwich:
-        return xp.sum(r * r) / dof * bread
     Jr = J * r[:, None]
-    return (m_eff / dof) * (bread @ (Jr.T @ Jr) @ bread)
+    return covariance_normal(J.T @ J, None if not sandwich else Jr.T @ Jr,
+                             (r * r).sum(), m_eff)
+
+
+def covariance_normal(A, meat, rss, m_eff):
+    """:func:`covariance` from the normal-equation quantities: ``A = J^T J`` (p, p), the
+    sandwich's ``meat = J^T diag(r^2) J`` (None: the pooled estimator) and ``rss = sum r^2``
+    (what the batch solver computes without forming ``J``)."""
+    xp = jnp if any(isinstance(x, jax.Array) for x in (A, meat, rss)) else np
+    p = A.shape[-1]
+    dof = max(int(m_eff) - p, 1) if isinstance(m_eff, int) else xp.maximum(m_eff - p, 1)
+    bread = xp.linalg.pinv(A)
+    if meat is None:
+        return rss / dof * bread
+    return (m_eff / dof) * (bread @ meat @ bread)
 
 
 def _arrays(data: GonioData, max_zenith_deg, dtype):
