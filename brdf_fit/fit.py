@@ -180,40 +180,43 @@ _METRIC_H = {"log": jnp.log1p, "cuberoot": jnp.cbrt, "relative": lambda x: x,
              "absolute": lambda x: x}
 
 
-def _metric_parts(name, f, c, sigma, w, floor, cos_weight):
-    """The data side of :func:`_metric`, computed once (NumPy): ``(mul, gf, scale)`` such that
-    the residual is ``(h(m * mul) - gf) * scale`` with ``h`` = :data:`_METRIC_H` [name]
-    (log: ``h = log1p``, ``mul = cos``; cube root: ``h = cbrt``; relative: ``mul = 1/den``;
-    absolute: identity), ``gf = h(f * mul)``, and ``scale`` the weight (``sqrt(w)``, or
+def _metric_parts(name, f, c, sigma, w, floor, cos_weight, xp=np):
+    """The data side of :func:`_metric`, computed once: ``(mul, gf, scale)`` such that the
+    residual is ``(h(m * mul) - gf) * scale`` with ``h`` = :data:`_METRIC_H` [name] (log:
+    ``h = log1p``, ``mul = cos``; cube root: ``h = cbrt``; relative: ``mul = 1/den``; absolute:
+    identity), ``gf = h(f * mul)``, and ``scale`` the weight (``sqrt(w)``, or
     ``1/(g'(f) sigma)`` where ``w > 0``) times ``cos`` with ``cos_weight``. Equal to
     :func:`_metric` up to rounding (relative: ``m/den - f/den`` for ``(m - f)/den``). The
     batch solver evaluates its residual this way: the data terms (for ``log``, half of the
-    transcendental calls) are no longer recomputed at every iteration. ``f``, ``w``, ``sigma``
-    (or None): (..., M, C); ``c``: (..., M, 1); ``floor``: (...,). ``mul`` is (..., M, 1)
-    except for ``relative`` (..., M, C)."""
-    f = np.asarray(f, float)
-    floor = np.asarray(floor, float)[..., None, None]
-    one = np.ones_like(f)
+    transcendental calls) are no longer recomputed at every iteration. ``f``, ``w`` (None:
+    all 1), ``sigma`` (or None): (..., M, C); ``c``: (..., M, 1); ``floor``: (...,). ``mul``
+    is (..., M, 1) except for ``relative`` (..., M, C); ``scale`` is None without weights,
+    sigma and ``cos_weight``. ``xp``: numpy or jax.numpy."""
+    floor = xp.asarray(floor)[..., None, None]
+    ones_c = xp.ones_like(c)
     if name == "log":
         mul = c
-        gf = np.log1p(f * c)
+        gf = xp.log1p(f * c)
         dg = c / (1.0 + f * c)
     elif name == "cuberoot":
-        mul, gf = np.ones_like(c), np.cbrt(f)
-        dg = 1.0 / (3.0 * np.cbrt(np.maximum(f, floor)) ** 2)
+        mul, gf = ones_c, xp.cbrt(f)
+        dg = 1.0 / (3.0 * xp.cbrt(xp.maximum(f, floor)) ** 2)
     elif name == "relative":
-        den = np.maximum(f, floor)
+        den = xp.maximum(f, floor)
         mul = 1.0 / den
         gf, dg = f * mul, mul
     elif name == "absolute":
-        mul, gf, dg = np.ones_like(c), f, one
+        mul, gf, dg = ones_c, f, xp.ones_like(f)
     else:  # pragma: no cover - validated earlier
         raise FitError(name)
     if sigma is not None:
-        with np.errstate(divide="ignore"):
-            scale = np.where(w > 0, 1.0 / np.maximum(dg * sigma, 1e-300), 0.0)
-    else:
-        scale = np.sqrt(w)
+        pos = xp.ones_like(f, dtype=bool) if w is None else w > 0
+        scale = xp.where(pos, 1.0 / xp.maximum(dg * sigma, 1e-300), 0.0)
+    elif w is not None:
+        scale = xp.sqrt(w)
+    else:  # no weights: no scale array (None), nothing to multiply at every iteration
+        scale = c * xp.ones_like(f) if cos_weight else None
+        return mul, gf, scale
     if cos_weight:
         scale = scale * c
     return mul, gf, scale
@@ -264,13 +267,13 @@ class _Problem:
         """Residuals as a function of the unconstrained flat ``u`` (what the solvers see)."""
         return self.residuals_at(self.unflatten(u), arrays)
 
-    def prepare(self, arrays):
-        """NumPy ``arrays`` (wi, wo, f, w, sigma, floor; leading batch axes allowed) -> the
-        prepared tuple ``(wi, wo, mul, gf, scale)`` of :meth:`residuals_prepared`."""
-        wi, wo, f, w, sigma, floor = (None if a is None else np.asarray(a, float)
-                                      for a in arrays)
+    def prepare(self, arrays, xp=np):
+        """``arrays`` (wi, wo, f, w, sigma, floor; leading batch axes allowed; ``w`` None: all
+        1) -> the prepared tuple ``(wi, wo, mul, gf, scale)`` of :meth:`residuals_prepared`.
+        ``xp``: numpy or jax.numpy (fit_batch prepares on the device)."""
+        wi, wo, f, w, sigma, floor = (None if a is None else xp.asarray(a) for a in arrays)
         mul, gf, scale = _metric_parts(self.metric, f, wi[..., 2:3], sigma, w, floor,
-                                       self.cos_weight)
+                                       self.cos_weight, xp)
         return wi, wo, mul, gf, scale
 
     def residuals_prepared(self, params, prep):
@@ -280,7 +283,8 @@ class _Problem:
         m = self.entry.build(**params).eval(wi, wo)
         if m.ndim == 1:
             m = m[:, None]
-        return (_METRIC_H[self.metric](m * mul) - gf) * scale
+        r = _METRIC_H[self.metric](m * mul) - gf
+        return r if scale is None else r * scale
 
     def physical(self, parts):
         """{free name: unconstrained value} -> all physical parameters (fixed ones included)."""

@@ -306,12 +306,12 @@ def test_structured_jacobian_detects_channel_mixing():
 
 
 @pytest.mark.parametrize("metric", ["log", "cuberoot", "relative", "absolute"])
-@pytest.mark.parametrize("sigma", [False, True], ids=["weights", "sigma"])
+@pytest.mark.parametrize("sigma", ["none", "weights", "sigma"])
 @pytest.mark.parametrize("cos_weight", [False, True], ids=["", "cos"])
 def test_prepared_residuals_equal_fit_residuals(metric, sigma, cos_weight):
     """The batch residual with the data side of the metric computed once
-    (_Problem.prepare) equals fit()'s residual, for every metric, with sigma or weights (some
-    zero) and cosine weighting."""
+    (_Problem.prepare) equals fit()'s residual, for every metric, without weights, with
+    weights (some zero) or sigma, and with cosine weighting."""
     from brdf_fit.fit import RELATIVE_FLOOR
     rng = np.random.default_rng(5)
     entry = registry.get("ggx")
@@ -322,9 +322,15 @@ def test_prepared_residuals_equal_fit_residuals(metric, sigma, cos_weight):
                                                                    jnp.asarray(wo)))
     f = f * np.exp(0.05 * rng.standard_normal(f.shape))
     w = rng.uniform(0.5, 2.0, f.shape) * (rng.uniform(size=f.shape) > 0.2)
-    sg = 0.01 * f + 1e-3 if sigma else None
+    sg = 0.01 * f + 1e-3 if sigma == "sigma" else None
     raw = (wi, wo, f, w, sg, RELATIVE_FLOOR * f.max())
-    got = np.asarray(prob.residuals_prepared(prob.unflatten(jnp.asarray(u)), prob.prepare(raw)))
+    if sigma == "none":  # fit()'s residual with unit weights; the prepared one without any
+        raw = (wi, wo, f, np.ones_like(f), None, RELATIVE_FLOOR * f.max())
+        prep = prob.prepare((*raw[:3], None, *raw[4:]))
+        assert (prep[4] is None) == (not cos_weight)
+    else:
+        prep = prob.prepare(raw)
+    got = np.asarray(prob.residuals_prepared(prob.unflatten(jnp.asarray(u)), prep))
     want = np.asarray(prob.residuals(jnp.asarray(u), raw))
     np.testing.assert_allclose(got.reshape(-1), want, rtol=1e-12, atol=1e-14)
 
