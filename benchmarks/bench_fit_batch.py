@@ -1,24 +1,26 @@
 """Batch fitting: 10,000 GGX fits with :func:`brdf_fit.fit_batch.fit_batch` against a loop of
 ``scipy.optimize.least_squares`` over the same problems, in one run.
 
-    python benchmarks/bench_fit_batch.py [--problems 10000] [--samples 300] [--scipy-subset 300]
+    python benchmarks/bench_fit_batch.py [--problems 10000] [--samples 300]
+                                         [--scipy-subset 1000] [--repeats 3]
                                          [--vmap-subset 2000] [--out DIR]
 
 Problems: registry ``ggx`` (GGX D, height-correlated Smith, Schlick F), ``alpha`` and RGB ``f0``
 free; per problem ``--samples`` random direction pairs (cos(theta) uniform in [0.05, 1], phi
 uniform), truth ``alpha`` log-uniform in [0.05, 0.8] and ``f0`` uniform in [0.02, 1] per
-channel, values times ``exp(0.01 N(0, 1))`` (1% lognormal noise), all seeded. Every fit starts
-from the registry defaults (alpha 0.3, f0 0.04) with the ``log`` metric and the same
-unconstrained parameterisation (:class:`brdf_fit.fit.Transform`).
+channel, values times ``exp(0.01 N(0, 1))`` (1% lognormal noise), all seeded. Every fit uses
+the ``log`` metric and the same unconstrained parameterisation
+(:class:`brdf_fit.fit.Transform`). Times are medians of ``--repeats`` warm calls (fit_batch)
+or passes over the subset (scipy), all reported in the JSON.
 
 Timed (float64, x64 on):
 
 ``batch``         ``fit_batch`` with its defaults: the coarse grid guess (``brdf_fit.guess``),
-                  solver ``batch-lm``, the chunk schedule ``CHUNK_SCHEDULE`` (6, 3, 3, 4, 8,
-                  16, 32 steps, stragglers compacted between chunks) and groups of ``GROUP`` = 8
-                  lanes, each with its own while_loop; ``rtol = atol = 1e-8``; warm (second)
-                  call, the first call (with compilation) reported separately. One device: one
-                  core (the groups run one after another).
+                  solver ``batch-lm``, the chunk schedule ``CHUNK_SCHEDULE`` (stragglers
+                  compacted between chunks) and groups of ``GROUP`` = 8 lanes, each with its
+                  own while_loop; ``rtol = atol = 1e-8``; warm calls, the first call (with
+                  compilation) reported separately. One device (the groups run one after
+                  another).
 ``batch-f32``     the same in float32 (``dtype=float32``), tolerances 1e-5.
 variants          on ``--vmap-subset`` problems: one plain vmapped solve (``chunk_steps=None,
                   group=None``), chunks without groups, groups in one chunk, and the default:
@@ -99,6 +101,19 @@ def run_batch(wi, wo, v, **kw):
     return r, time.perf_counter() - t
 
 
+#: warm calls (fit_batch) and loop passes (scipy) timed per method; the median is reported
+REPEATS = 3
+
+
+def warm_batch(wi, wo, v, repeats, **kw):
+    """``repeats`` warm calls (compiled already): the last result, the median and all times."""
+    times = []
+    for _ in range(repeats):
+        r, dt = run_batch(wi, wo, v, **kw)
+        times.append(dt)
+    return r, float(np.median(times)), times
+
+
 def _ggx_problem():
     entry = registry.get("ggx")
     return _Problem(entry, ("alpha", "f0"), ((), (3,)),
@@ -113,9 +128,10 @@ def to_u(alpha, f0):
                            prob.transforms[1].inverse(f0)], axis=1)
 
 
-def scipy_loop(wi, wo, v, idx, method, u_start=None):
+def scipy_loop(wi, wo, v, idx, method, u_start=None, repeats=1):
     """``least_squares`` on problems ``idx``, from the registry defaults or from ``u_start``
-    (one unconstrained start per problem of ``idx``)."""
+    (one unconstrained start per problem of ``idx``); the loop is timed ``repeats`` times
+    (median reported; the results are those of the first pass, every pass is identical)."""
     prob = _ggx_problem()
     u0 = np.concatenate([np.atleast_1d(prob.transforms[0].inverse(0.3)),
                          prob.transforms[1].inverse(np.full(3, 0.04))])
@@ -129,21 +145,28 @@ def scipy_loop(wi, wo, v, idx, method, u_start=None):
                      jnp.ones_like(jnp.asarray(v[b])), None, floor))
     a = data[0]  # warm-up: compile both functions once
     np.asarray(res(jnp.asarray(u0), a)), np.asarray(jac(jnp.asarray(u0), a))
-    out = {"u": [], "cost": [], "nfev": [], "njev": [], "status": []}
-    t = time.perf_counter()
-    for a, us in zip(data, starts, strict=True):
-        r = least_squares(lambda u, a=a: np.asarray(res(u, a)), us,
-                          jac=lambda u, a=a: np.asarray(jac(u, a)), method=method)
-        out["u"].append(r.x)
-        out["cost"].append(r.cost)
-        out["nfev"].append(r.nfev)
-        out["njev"].append(r.njev or 0)
-        out["status"].append(r.status)
-    dt = time.perf_counter() - t
+    times = []
+    for k in range(repeats):
+        out = {"u": [], "cost": [], "nfev": [], "njev": [], "status": []}
+        t = time.perf_counter()
+        for a, us in zip(data, starts, strict=True):
+            r = least_squares(lambda u, a=a: np.asarray(res(u, a)), us,
+                              jac=lambda u, a=a: np.asarray(jac(u, a)), method=method)
+            out["u"].append(r.x)
+            out["cost"].append(r.cost)
+            out["nfev"].append(r.nfev)
+            out["njev"].append(r.njev or 0)
+            out["status"].append(r.status)
+        times.append(time.perf_counter() - t)
+        if k == 0:
+            first = out
+    out = first
+    dt = float(np.median(times))
     u = np.asarray(out["u"])
     alpha = np.asarray(prob.transforms[0].forward(jnp.asarray(u[:, 0])))
     f0 = np.asarray(prob.transforms[1].forward(jnp.asarray(u[:, 1:])))
-    return {"seconds": dt, "alpha": alpha, "f0": f0, "cost": np.asarray(out["cost"]),
+    return {"seconds": dt, "seconds_all": times, "alpha": alpha, "f0": f0,
+            "cost": np.asarray(out["cost"]),
             "nfev": np.asarray(out["nfev"]), "njev": np.asarray(out["njev"]),
             "status": np.asarray(out["status"])}
 
@@ -156,8 +179,8 @@ def errors(alpha, f0, ta, tf):
             "f0_abs_p90": float(np.quantile(ef, .9)), "f0_abs_max": float(ef.max())}
 
 
-def batch_summary(r, dt_cold, dt_warm):
-    return {"seconds_warm": dt_warm, "seconds_cold": dt_cold,
+def batch_summary(r, dt_cold, dt_warm, warm_all=None):
+    return {"seconds_warm": dt_warm, "seconds_cold": dt_cold, "seconds_warm_all": warm_all,
             "converged": float(r.converged.mean()), "steps_mean": float(r.steps.mean()),
             "steps_p50_p90_p99_max": [float(x) for x in
                                       np.percentile(r.steps, [50, 90, 99, 100])],
@@ -170,8 +193,8 @@ def child(args):
     wi, wo, v, _, _ = make_problems(args.problems, args.samples, args.seed)
     kw = dict(rtol=1e-8, atol=1e-8, chunk_steps="auto", shard=True)
     r, dt_cold = run_batch(wi, wo, v, **kw)
-    r, dt_warm = run_batch(wi, wo, v, **kw)
-    out = batch_summary(r, dt_cold, dt_warm)
+    r, dt_warm, warm_all = warm_batch(wi, wo, v, args.repeats, **kw)
+    out = batch_summary(r, dt_cold, dt_warm, warm_all)
     out["devices"] = [str(d) for d in jax.devices()]
     out["alpha"] = r.params["alpha"].tolist()
     out["f0"] = r.params["f0"].tolist()
@@ -186,7 +209,7 @@ def sharded(args, B, M, r):
     tmp = args.out / "_fit_batch_child.json"
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2")
     cmd = [sys.executable, __file__, "--problems", str(B), "--samples", str(M), "--seed",
-           str(args.seed), "--child-out", str(tmp)]
+           str(args.seed), "--repeats", str(args.repeats), "--child-out", str(tmp)]
     try:
         subprocess.run(cmd, env=env, check=True, timeout=args.shard_timeout)
     except subprocess.TimeoutExpired:
@@ -209,7 +232,9 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--problems", type=int, default=10000)
     ap.add_argument("--samples", type=int, default=300)
-    ap.add_argument("--scipy-subset", type=int, default=300)
+    ap.add_argument("--scipy-subset", type=int, default=1000)
+    ap.add_argument("--repeats", type=int, default=REPEATS,
+                    help="timed warm calls / scipy loop passes per method (median reported)")
     ap.add_argument("--vmap-subset", type=int, default=2000)
     ap.add_argument("--seed", type=int, default=SEED)
     ap.add_argument("--no-f32", action="store_true")
@@ -234,8 +259,8 @@ def main(argv=None) -> int:
     print("batch float64 ...", flush=True)
     kw = dict(rtol=1e-8, atol=1e-8, chunk_steps="auto")
     r, dt_cold = run_batch(wi, wo, v, **kw)
-    r, dt_warm = run_batch(wi, wo, v, **kw)
-    res["batch"] = batch_summary(r, dt_cold, dt_warm)
+    r, dt_warm, warm_all = warm_batch(wi, wo, v, args.repeats, **kw)
+    res["batch"] = batch_summary(r, dt_cold, dt_warm, warm_all)
     res["batch"]["errors"] = errors(r.params["alpha"], r.params["f0"], ta, tf)
     res["batch"]["errors_subset"] = errors(r.params["alpha"][sub], r.params["f0"][sub],
                                            ta[sub], tf[sub])
@@ -248,11 +273,13 @@ def main(argv=None) -> int:
     for method, start in (("trf", "defaults"), ("lm", "defaults"), ("trf", "grid"),
                           ("lm", "grid")):
         name = f"scipy-{method}" + ("" if start == "defaults" else "-grid")
-        s = scipy_loop(wi, wo, v, sub, method, None if start == "defaults" else u_grid)
+        s = scipy_loop(wi, wo, v, sub, method, None if start == "defaults" else u_grid,
+                       repeats=args.repeats)
         rel = (r.loss[sub] - s["cost"]) / s["cost"]
         res[name] = {
             "method": method, "start": start,
-            "seconds_subset": s["seconds"], "seconds_extrapolated": s["seconds"] * B / sub.size,
+            "seconds_subset": s["seconds"], "seconds_subset_all": s["seconds_all"],
+            "seconds_extrapolated": s["seconds"] * B / sub.size,
             "ms_per_problem": 1e3 * s["seconds"] / sub.size, "nfev_mean": float(s["nfev"].mean()),
             "njev_mean": float(s["njev"].mean()),
             "status_counts": {str(k): int(c) for k, c in zip(*np.unique(s["status"],
