@@ -257,12 +257,6 @@ def _normal(T, r, Q):
     return jnp.einsum("cap,cab,cbq->pq", Q, G, Q), jnp.einsum("cap,ca->p", Q, h)
 
 
-def _jacobian(T, Q):
-    """The full Jacobian (M C, p) of the flattened residual from the tangents."""
-    J = jnp.einsum("amc,cap->mcp", T, jnp.asarray(Q, T.dtype))
-    return J.reshape(-1, J.shape[-1])
-
-
 def _quad(problem, dq, u, prep, fx, sandwich):
     """Loss and the normal-equation quantities ``(0.5 |r|^2, J^T J, J^T r, J^T diag(r^2) J)``
     at ``u`` (the last, the sandwich estimator's meat, zeros unless ``sandwich``): only these
