@@ -154,41 +154,20 @@ def at_bound(param, value) -> np.ndarray:
 # ----------------------------------------------------------------------------- residuals
 
 
-def _metric(name, m, f, c, sigma, w, floor):
-    if name == "log":
-        g = jnp.log1p(m * c) - jnp.log1p(f * c)
-        dg = c / (1.0 + f * c)
-    elif name == "cuberoot":
-        g = jnp.cbrt(m) - jnp.cbrt(f)
-        dg = 1.0 / (3.0 * jnp.cbrt(jnp.maximum(f, floor)) ** 2)
-    elif name == "relative":
-        den = jnp.maximum(f, floor)
-        g = (m - f) / den
-        dg = 1.0 / den
-    elif name == "absolute":
-        g = m - f
-        dg = jnp.ones_like(f)
-    else:  # pragma: no cover - validated earlier
-        raise FitError(name)
-    if sigma is not None:
-        return jnp.where(w > 0, g / jnp.maximum(dg * sigma, 1e-300), 0.0)
-    return g * jnp.sqrt(w)
-
-
 #: The metrics as ``g(m) = h(m * mul) - g(f)`` (see :func:`_metric_parts`).
 _METRIC_H = {"log": jnp.log1p, "cuberoot": jnp.cbrt, "relative": lambda x: x,
              "absolute": lambda x: x}
 
 
 def _metric_parts(name, f, c, sigma, w, floor, cos_weight, xp=np):
-    """The data side of :func:`_metric`, computed once: ``(mul, gf, scale)`` such that the
-    residual is ``(h(m * mul) - gf) * scale`` with ``h`` = :data:`_METRIC_H` [name] (log:
+    """The residual metrics, data side: ``(mul, gf, scale)`` such that the residual of model
+    values ``m`` is ``(h(m * mul) - gf) * scale`` with ``h`` = :data:`_METRIC_H` [name] (log:
     ``h = log1p``, ``mul = cos``; cube root: ``h = cbrt``; relative: ``mul = 1/den``; absolute:
     identity), ``gf = h(f * mul)``, and ``scale`` the weight (``sqrt(w)``, or
-    ``1/(g'(f) sigma)`` where ``w > 0``) times ``cos`` with ``cos_weight``. Equal to
-    :func:`_metric` up to rounding (relative: ``m/den - f/den`` for ``(m - f)/den``). The
-    batch solver evaluates its residual this way: the data terms (for ``log``, half of the
-    transcendental calls) are no longer recomputed at every iteration. ``f``, ``w`` (None:
+    ``1/(g'(f) sigma)`` where ``w > 0``) times ``cos`` with ``cos_weight``; relative is
+    evaluated as ``m/den - f/den``. fit() computes it inside its residual (differentiable with
+    respect to the data); the batch solver once per call, so the data terms (for ``log``, half
+    of the transcendental calls) are not recomputed at every iteration. ``f``, ``w`` (None:
     all 1), ``sigma`` (or None): (..., M, C); ``c``: (..., M, 1); ``floor``: (...,). ``mul``
     is (..., M, 1) except for ``relative`` (..., M, C); ``scale`` is None without weights,
     sigma and ``cos_weight``. ``xp``: numpy or jax.numpy."""
@@ -245,23 +224,11 @@ class _Problem:
 
     def unflatten(self, u):
         """Unconstrained flat ``u`` -> all physical parameters (the fixed ones included)."""
-        out = {name: tr.forward(v) for (name, v), tr in
-               zip(self.split(u).items(), self.transforms, strict=True)}
-        return {**self.fixed, **out}
+        return self.physical(self.split(u))
 
     def residuals_at(self, params, arrays):
         """Residual vector of the model built from ``params`` (all parameters, physical)."""
-        wi, wo, f, w, sigma, floor = arrays
-        model = self.entry.build(**params)
-        m = model.eval(wi, wo)
-        if m.ndim == 1:
-            m = m[:, None]
-        m = jnp.broadcast_to(m, f.shape)
-        c = wi[:, 2:3]
-        r = _metric(self.metric, m, f, c, sigma, w, floor)
-        if self.cos_weight:
-            r = r * c
-        return r.reshape(-1)
+        return self.residuals_prepared(params, self.prepare(arrays, jnp)).reshape(-1)
 
     def residuals(self, u, arrays):
         """Residuals as a function of the unconstrained flat ``u`` (what the solvers see)."""
@@ -278,7 +245,7 @@ class _Problem:
 
     def residuals_prepared(self, params, prep):
         """Residuals ``(M, C)`` (not flattened) of the model built from ``params`` (all,
-        physical) on prepared data (:meth:`prepare`): :meth:`residuals_at` up to rounding."""
+        physical) on prepared data (:meth:`prepare`)."""
         wi, wo, mul, gf, scale = prep
         m = self.entry.build(**params).eval(wi, wo)
         if m.ndim == 1:

@@ -307,13 +307,30 @@ def test_structured_jacobian_detects_channel_mixing():
     assert err > 1e-3
 
 
+def _metric_reference(name, m, f, c, sigma, w, floor, cos_weight):
+    """The residual metrics written out from their definitions (fit.py's module docstring),
+    independently of brdf_fit.fit._metric_parts."""
+    if name == "log":
+        g, dg = np.log1p(m * c) - np.log1p(f * c), c / (1.0 + f * c)
+    elif name == "cuberoot":
+        g, dg = np.cbrt(m) - np.cbrt(f), 1.0 / (3.0 * np.cbrt(np.maximum(f, floor)) ** 2)
+    elif name == "relative":
+        den = np.maximum(f, floor)
+        g, dg = (m - f) / den, 1.0 / den
+    else:
+        g, dg = m - f, np.ones_like(f)
+    r = np.where(w > 0, g / (dg * sigma), 0.0) if sigma is not None else g * np.sqrt(w)
+    return r * c if cos_weight else r
+
+
 @pytest.mark.parametrize("metric", ["log", "cuberoot", "relative", "absolute"])
 @pytest.mark.parametrize("sigma", ["none", "weights", "sigma"])
 @pytest.mark.parametrize("cos_weight", [False, True], ids=["", "cos"])
 def test_prepared_residuals_equal_fit_residuals(metric, sigma, cos_weight):
-    """The batch residual with the data side of the metric computed once
-    (_Problem.prepare) equals fit()'s residual, for every metric, without weights, with
-    weights (some zero) or sigma, and with cosine weighting."""
+    """The residual with the data side of the metric computed once (_Problem.prepare, NumPy
+    for the test, jax.numpy in fit() and fit_batch) equals the metric written out from its
+    definition, for every metric, without weights, with weights (some zero) or sigma, and
+    with cosine weighting; fit()'s flat residual is the same."""
     from brdf_fit.fit import RELATIVE_FLOOR
     rng = np.random.default_rng(5)
     entry = registry.get("ggx")
@@ -332,9 +349,13 @@ def test_prepared_residuals_equal_fit_residuals(metric, sigma, cos_weight):
         assert (prep[4] is None) == (not cos_weight)
     else:
         prep = prob.prepare(raw)
-    got = np.asarray(prob.residuals_prepared(prob.unflatten(jnp.asarray(u)), prep))
-    want = np.asarray(prob.residuals(jnp.asarray(u), raw))
-    np.testing.assert_allclose(got.reshape(-1), want, rtol=1e-12, atol=1e-14)
+    params = prob.unflatten(jnp.asarray(u))
+    got = np.asarray(prob.residuals_prepared(params, prep))
+    m = np.asarray(entry.build(**params).eval(jnp.asarray(wi), jnp.asarray(wo)))
+    want = _metric_reference(metric, m, f, wi[:, 2:3], raw[4], raw[3], raw[5], cos_weight)
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(np.asarray(prob.residuals(jnp.asarray(u), raw)), got.reshape(-1),
+                               rtol=1e-12, atol=1e-14)
 
 
 def _has_product_design(entry):
