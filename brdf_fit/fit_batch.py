@@ -456,14 +456,13 @@ def _pseudo_channel_losses(problem, cands, prep, fixed, lay, chan_of):
                    else v) for k, v in fixed.items()}
     prob_t = dataclasses.replace(problem, fixed=fixed_t)
 
+    is_chan = {n: bool(np.ravel(v)[0]) for n, v in problem.split(chan).items()}
+
     def one(rows):  # (nl, p): one shared point, its nl levels
-        parts = prob_t.split(rows[0])
-        k = 0
-        for name, shape in zip(prob_t.free, prob_t.shapes, strict=True):
-            size = int(np.prod(shape)) if shape else 1
-            if chan[k]:  # (nl, C) -> pseudo-channels l C + c
-                parts[name] = rows[:, k:k + size].reshape(-1)
-            k += size
+        levels = jax.vmap(prob_t.split)(rows)  # {name: (nl, ...)}
+        # a channel parameter's (nl, C) levels become the pseudo-channels l C + c; a shared
+        # one is the same in every level
+        parts = {n: v.reshape(-1) if is_chan[n] else v[0] for n, v in levels.items()}
         r = prob_t.residuals_prepared(prob_t.physical(parts), prep_t)
         return 0.5 * jnp.sum(r * r, axis=0).reshape(nl, C)
 
