@@ -7,8 +7,8 @@ SmithHeightCorrelated(), ConstantFresnel(1.0))`` (float64), for alpha in {0.001,
 and cos(theta_o) in {0.001, 0.01, 0.5, 1} (view azimuth 0.3 rad). Methods, each at several numbers
 ``N`` of BRDF evaluations per direction:
 
-``halfvector``  :func:`brdf_fit.quadrature.halfvector_rule` (``n_theta x n_phi = N``; the default
-                of :func:`~brdf_fit.quadrature.directional_albedo` is 48 x 64 = 3072)
+``halfvector``  :func:`brdf_fit.core.quadrature.halfvector_rule` (``n_theta x n_phi = N``; the default
+                of :func:`~brdf_fit.verify.albedo.directional_albedo` is 48 x 64 = 3072)
 ``gl-product``  Gauss-Legendre in cos(theta) x periodic trapezoid in phi (``n x 2n = N``), the
                 rule for smooth integrands, for comparison
 ``mc-cosine``   plain Monte Carlo, cosine-weighted hemisphere sampling, ``E ~ mean(pi f)``
@@ -52,9 +52,9 @@ from scipy import integrate as sint  # noqa: E402
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from brdf_fit import quadrature as q  # noqa: E402
-from brdf_fit.fresnel import ConstantFresnel  # noqa: E402
-from brdf_fit.microfacet import GGX, SmithHeightCorrelated  # noqa: E402
+from brdf_fit.core import quadrature as q  # noqa: E402
+from brdf_fit.core.fresnel import ConstantFresnel  # noqa: E402
+from brdf_fit.core.microfacet import GGX, SmithHeightCorrelated  # noqa: E402
 from brdf_fit.models import MicrofacetBRDF  # noqa: E402
 
 ALPHAS = (0.001, 0.01, 0.1, 0.5, 1.0)

@@ -50,7 +50,7 @@ import numpy as np
 
 import brdf_fit
 from brdf_fit import registry
-from brdf_fit.fresnel import conductor
+from brdf_fit.core.fresnel import conductor
 
 ALPHA = 0.3
 RTOL = 1e-4
@@ -97,7 +97,7 @@ class NumpyGGXConductor:
     - GGX ``D = 1/(pi ax ay (hx^2/ax^2 + hy^2/ay^2 + hz^2)^2)``;
     - height-correlated Smith, division-free:
       ``V = 0.5/(co sqrt(ax^2 ix^2 + ay^2 iy^2 + ci^2) + ci sqrt(ax^2 ox^2 + ay^2 oy^2 + co^2))``;
-    - exact conductor Fresnel in the real-arithmetic form of ``brdf_fit.fresnel.conductor``
+    - exact conductor Fresnel in the real-arithmetic form of ``brdf_fit.core.fresnel.conductor``
       (both branches for ``a^2``, selected on the sign of ``t0``).
 
     Layout choices that matter for NumPy (measured, see benchmarks/README.md): directions are

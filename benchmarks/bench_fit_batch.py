@@ -1,4 +1,4 @@
-"""Batch fitting: 10,000 GGX fits with :func:`brdf_fit.fit_batch.fit_batch` against a loop of
+"""Batch fitting: 10,000 GGX fits with :func:`brdf_fit.fitting.batch.fit_batch` against a loop of
 ``scipy.optimize.least_squares`` over the same problems, in one run.
 
     python benchmarks/bench_fit_batch.py [--problems 10000] [--samples 300]
@@ -10,12 +10,12 @@ free; per problem ``--samples`` random direction pairs (cos(theta) uniform in [0
 uniform), truth ``alpha`` log-uniform in [0.05, 0.8] and ``f0`` uniform in [0.02, 1] per
 channel, values times ``exp(0.01 N(0, 1))`` (1% lognormal noise), all seeded. Every fit uses
 the ``log`` metric and the same unconstrained parameterisation
-(:class:`brdf_fit.fit.Transform`). Times are medians of ``--repeats`` warm calls (fit_batch)
+(:class:`brdf_fit.fitting.single.Transform`). Times are medians of ``--repeats`` warm calls (fit_batch)
 or passes over the subset (scipy), all reported in the JSON.
 
 Timed (float64, x64 on):
 
-``batch``         ``fit_batch`` with its defaults: the coarse grid guess (``brdf_fit.guess``),
+``batch``         ``fit_batch`` with its defaults: the coarse grid guess (``brdf_fit.fitting.guess``),
                   solver ``batch-lm``, the chunk schedule ``CHUNK_SCHEDULE`` (stragglers
                   compacted between chunks) and groups of ``GROUP`` = 8 lanes, each with its
                   own while_loop; ``rtol = atol = 1e-8``; warm calls, the first call (with
@@ -65,8 +65,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_eval import _loadavg, machine_info  # noqa: E402
 
 from brdf_fit import registry  # noqa: E402
-from brdf_fit.fit import RELATIVE_FLOOR, _Problem, _transform  # noqa: E402
-from brdf_fit.fit_batch import fit_batch  # noqa: E402
+from brdf_fit.fitting.batch import fit_batch  # noqa: E402
+from brdf_fit.fitting.single import RELATIVE_FLOOR, _Problem, _transform  # noqa: E402
 
 SEED = 20240611
 SCIPY = ("scipy-trf", "scipy-lm", "scipy-trf-grid", "scipy-lm-grid")
@@ -373,7 +373,7 @@ def write_markdown(path, command, info, res):
          f" when these are high; all methods ran in the same process, one after another.",
          f"- {res['problems']} problems, registry `ggx` (alpha + RGB f0 free), {res['samples']} "
          f"direction pairs each, {100 * res['noise']:g}% lognormal noise, metric `log`; seed "
-         f"{res['seed']}. fit_batch starts from its coarse grid guess (`brdf_fit.guess`, the "
+         f"{res['seed']}. fit_batch starts from its coarse grid guess (`brdf_fit.fitting.guess`, the "
          "registry defaults among the candidates, included in its time); the scipy loops run "
          "from the registry defaults (`scipy-trf`, `scipy-lm`) and from the same grid guess "
          "(`-grid`, guess time not counted)", "",

@@ -9,13 +9,13 @@ the normaliser of :class:`brdf_fit.models.phong_normalized.EnergyNormalizedPhong
 Methods (each jitted, timed on a batch of ``--batch`` (cos_o, n) pairs of one exponent, the 24
 views tiled; seconds per normaliser evaluation = call time / batch):
 
-``mallett-yuksel``        :func:`brdf_fit.phong_norm.normaliser` (O(1), incomplete beta), float64
+``mallett-yuksel``        :func:`brdf_fit.core.phong_normaliser.normaliser` (O(1), incomplete beta), float64
 ``mallett-yuksel-f32``    the same in float32 (error against the float64 reference)
 ``arvo-tight``            Arvo's O(n) recurrence with the static bound ``max_n = n`` (best case;
                           integer n <= 2048 only)
 ``arvo-2048``             the same with the library default ``max_n = 2048`` (the cost a model
                           with a fixed bound pays for every exponent)
-``quad-mirror-KxP``       :func:`brdf_fit.quadrature.mirror_lobe_rule` with ``K`` Gauss-Legendre
+``quad-mirror-KxP``       :func:`brdf_fit.core.quadrature.mirror_lobe_rule` with ``K`` Gauss-Legendre
                           nodes per panel and ``P`` per azimuthal ring (16 x 32 is the library
                           default), the rule built inside the jitted function
 ``quad-gl-KxP``           plain Gauss-Legendre in cos(theta_i) x trapezoid in phi (``K x P``),
@@ -52,8 +52,8 @@ from scipy import integrate as sint  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_eval import machine_info, time_interleaved  # noqa: E402
 
-from brdf_fit import quadrature as q  # noqa: E402
-from brdf_fit.phong_norm import normaliser  # noqa: E402
+from brdf_fit.core import quadrature as q  # noqa: E402
+from brdf_fit.core.phong_normaliser import normaliser  # noqa: E402
 
 EXPONENTS = (1.0, 10.0, 100.0, 1000.0, 1e4, 1e5, 1e6)
 COSINES = tuple(float(c) for c in np.logspace(-4, 0, 24))

@@ -38,7 +38,7 @@ class CLIError(Exception):
 
 
 def _registry():
-    from . import registry
+    from brdf_fit import registry
 
     return registry
 
@@ -88,7 +88,7 @@ def cmd_models(args) -> int:
 
 
 def cmd_catalogue(args) -> int:
-    from . import catalogue
+    from brdf_fit.verify import catalogue
 
     records = catalogue.table()
     if args.write_readme:
@@ -204,7 +204,7 @@ def cmd_check(args) -> int:
 
     if not args.float32:  # verification wants float64 (reference tolerances are set for it)
         jax.config.update("jax_enable_x64", True)
-    from . import checks
+    from brdf_fit.verify import checks
 
     reg = _registry()
     if args.all and args.model:
@@ -256,42 +256,28 @@ def _ext(path: str) -> str:
 
 
 def read_data(path: str):
-    """:class:`~brdf_fit.data.GonioData` from ``.csv``, ``.npz`` (or its ``.json`` sidecar) or
-    MERL ``.binary``, chosen by the extension."""
-    import os
+    """:func:`brdf_fit.io.read`, with its errors as one-line CLI errors."""
+    from brdf_fit import io
+    from brdf_fit.data import DataError
 
-    from . import io
-
-    ext = _ext(path)
-    readers = {".csv": io.read_csv, ".npz": io.read_npz, ".json": io.read_npz,
-               ".binary": io.read_merl}
-    if ext not in readers:
-        raise CLIError(f"{path}: unknown data format {ext or '(no extension)'!r}; expected .csv, "
-                       ".npz (with its .json sidecar) or a MERL .binary")
-    if not os.path.exists(path):
-        raise CLIError(f"{path}: no such file")
-    return readers[ext](path)
+    try:
+        return io.read(path)
+    except DataError as e:
+        raise CLIError(str(e)) from None
 
 
 def write_data(data, path: str, provenance: dict | None = None) -> list[str]:
-    """Write ``data`` by the extension of ``path`` (``.csv`` or ``.npz``); returns the paths."""
-    from . import io
+    """:func:`brdf_fit.io.write` (``data=None``: only check the format), errors as CLI errors."""
+    from brdf_fit import io
+    from brdf_fit.data import DataError
 
-    ext = _ext(path)
     try:
-        if ext == ".csv":
-            io.write_csv(data, path)
-            return [path]
-        if ext == ".npz":
-            return list(io.write_npz(data, path, provenance=provenance))
-    except OSError as e:
-        raise CLIError(f"{path}: cannot write ({e.strerror or e})") from None
-    if ext == ".binary":
-        raise CLIError(f"{path}: a MERL .binary file is a full half/difference-angle table, not "
-                       "scattered samples; write .csv or .npz (brdf_fit.io.write_merl tabulates a "
-                       "model)")
-    raise CLIError(f"{path}: unknown output format {ext or '(no extension)'!r}; expected .csv or "
-                   ".npz")
+        if data is None:
+            io.check_writable_format(path)
+            return []
+        return io.write(data, path, provenance=provenance)
+    except DataError as e:
+        raise CLIError(str(e)) from None
 
 
 def cmd_synth(args) -> int:
@@ -319,7 +305,7 @@ def cmd_synth(args) -> int:
 
 
 def _check_names(names) -> list[str]:
-    from . import checks
+    from brdf_fit.verify import checks
 
     for c in names or []:
         if c not in checks.CHECKS:
@@ -363,7 +349,7 @@ def _print_fit(result, data, path: str) -> None:
 
 def cmd_fit(args) -> int:
     _x64()
-    from .fit import fit
+    from brdf_fit.fitting.single import fit
 
     reg = _registry()
     entry = reg.get(args.model)  # unknown models fail before the data are read
@@ -471,7 +457,7 @@ def _write_batch_table(rows, path: str) -> None:
 
 def cmd_fit_batch(args) -> int:
     _x64()
-    from .fit_batch import fit_batch
+    from brdf_fit.fitting.batch import fit_batch
 
     reg = _registry()
     entry = reg.get(args.model)
@@ -559,7 +545,7 @@ DEMO_SLICES_DEG = (0.0, 30.0, 60.0)
 
 def _demo_conversions(results: dict) -> list[dict]:
     """Closed-form Phong / Blinn-Phong exponent -> GGX alpha (peak match) of the fitted lobes."""
-    from . import convert_phong as cp
+    from brdf_fit.convert import phong as cp
 
     out = []
     if "modified-phong" in results:
@@ -587,7 +573,7 @@ def _demo_plots(data, ranked, out_dir) -> tuple[list[str], str | None]:
         import matplotlib  # noqa: F401
     except ImportError:
         return [], "matplotlib is not installed: plots skipped (pip install matplotlib)"
-    from . import plot
+    from brdf_fit import plot
 
     models = [(r.model_name, r.model) for r in ranked]
     files = []
@@ -614,10 +600,9 @@ def run_demo(out_dir, plots: bool = True, progress: bool = True) -> dict:
     import time
 
     _x64()
+    from brdf_fit.fitting.single import fit
+    from brdf_fit.verify.checks import run_checks
     from data_synth.recipes import synthesize
-
-    from .checks import run_checks
-    from .fit import fit
 
     t0 = time.perf_counter()
 
@@ -749,7 +734,7 @@ def cmd_convert(args) -> int:
         raise CLIError(f"unknown conversion {args.conversion!r}; valid conversions: "
                        f"{', '.join(CONVERSIONS)}")
     _x64()
-    from .convert_fit import phong_to_ggx
+    from brdf_fit.convert.phong_to_ggx import phong_to_ggx
 
     result = phong_to_ggx(args.source, exponents=args.exponents, metric=args.metric,
                           max_zenith_deg=args.max_zenith_deg)

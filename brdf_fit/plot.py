@@ -16,7 +16,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .data import GonioData
+from brdf_fit.data import GonioData
 
 __all__ = ["in_plane_slices", "residuals", "in_plane_samples"]
 

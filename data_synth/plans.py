@@ -32,6 +32,8 @@ from typing import Any
 
 import numpy as np
 
+from brdf_fit.core.frame import unit_from_angles, zenith_states_deg
+
 __all__ = [
     "Plan",
     "PlanError",
@@ -76,14 +78,6 @@ class Plan:
 
 
 # ----------------------------------------------------------------------------- helpers
-
-
-def unit_from_angles(theta_deg, phi_deg) -> np.ndarray:
-    """Unit vectors (..., 3) from zenith and azimuth angles in degrees."""
-    t = np.radians(np.asarray(theta_deg, dtype=np.float64))
-    p = np.radians(np.asarray(phi_deg, dtype=np.float64))
-    st = np.sin(t)
-    return np.stack([st * np.cos(p), st * np.sin(p), np.cos(t)], axis=-1)
 
 
 def _angles(name: str, values, lo: float, hi: float, hi_open: bool = True) -> np.ndarray:
@@ -152,23 +146,6 @@ def in_plane(
     return Plan(wi, wo, info)
 
 
-def _zenith_states(n_theta: int, n_phi: int, max_zenith: float, phi0: float = 0.0):
-    """Directions of a (theta, phi) grid with one state at the pole: theta on
-    ``linspace(0, max_zenith, n_theta)`` (just the normal if ``n_theta == 1``), phi on
-    ``phi0 + 360 k / n_phi``."""
-    thetas = np.linspace(0.0, max_zenith, n_theta) if n_theta > 1 else np.zeros(1)
-    phis = phi0 + 360.0 * np.arange(n_phi) / n_phi
-    t, p = [], []
-    for th in thetas:
-        if th == 0.0:
-            t.append(0.0)
-            p.append(phi0)
-        else:
-            t.extend([th] * n_phi)
-            p.extend(phis.tolist())
-    return unit_from_angles(np.asarray(t), np.asarray(p))
-
-
 def hemisphere_grid(
     n_theta_i: int = 7,
     n_theta_o: int = 7,
@@ -190,8 +167,8 @@ def hemisphere_grid(
     n_p = _positive_int("n_phi", n_phi)
     n_pi = _positive_int("n_phi_i", n_phi_i)
     mz = _max_zenith(max_zenith_deg)
-    di = _zenith_states(n_ti, n_pi, mz)
-    do = _zenith_states(n_to, n_p, mz)
+    di = zenith_states_deg(n_ti, n_pi, mz)
+    do = zenith_states_deg(n_to, n_p, mz)
     wi = np.repeat(di, do.shape[0], axis=0)
     wo = np.tile(do, (di.shape[0], 1))
     info = {"name": "hemisphere_grid", "args": {"n_theta_i": n_ti, "n_theta_o": n_to,

@@ -173,7 +173,7 @@ def synthesize(recipe) -> GonioData:
     import jax  # the model is a JAX BRDF
 
     from brdf_fit import registry
-    from brdf_fit._validate import ParameterError
+    from brdf_fit.core.validate import ParameterError
 
     where = recipe if not isinstance(recipe, dict) else recipe.get("name", "<dict>")
     r = normalize_recipe(recipe)

@@ -12,7 +12,7 @@ jax.config.update("jax_numpy_dtype_promotion", "strict")
 # ----------------------------------------------------------------------------- time budget
 # The registry-wide contract tests are parametrised over every entry. For the foundation,
 # microfacet and Phong entries (CORE) all of them run by default; for the catalogue entries
-# (issue 6: 28 more) the default run keeps the cheap ones, the checks (tests/test_checks.py,
+# (issue 6: 28 more) the default run keeps the cheap ones, the checks (tests/verify/test_checks.py,
 # which make the README's catalogue table true), the hard cases and one chi-square view, and the
 # rest run with `make test-all` (-m "slow or not slow"). Each catalogue model's own test file
 # keeps its finite-difference gradient and reference tests in the default run.
@@ -28,12 +28,12 @@ CORE = {
 }
 #: contract tests that run for catalogue entries only in the slow set
 CATALOGUE_SLOW = {
-    "tests/test_models.py::test_gradients_match_finite_differences",
-    "tests/test_models.py::test_vmap_over_parameters",
-    "tests/test_models.py::test_float32_matches_float64",
-    "tests/test_models.py::test_pdf_integrates_to_one_minus_failure_probability",
-    "tests/test_models.py::test_batch_shapes_broadcast_and_jit_equals_eager",
-    "tests/test_fit_recovery.py::test_noise_free_recovery",
+    "tests/models/test_models.py::test_gradients_match_finite_differences",
+    "tests/models/test_models.py::test_vmap_over_parameters",
+    "tests/models/test_models.py::test_float32_matches_float64",
+    "tests/models/test_models.py::test_pdf_integrates_to_one_minus_failure_probability",
+    "tests/models/test_models.py::test_batch_shapes_broadcast_and_jit_equals_eager",
+    "tests/fitting/test_fit_recovery.py::test_noise_free_recovery",
 }
 #: the chi-square view that runs by default for catalogue entries (the others: slow)
 CATALOGUE_CHI2_VIEW = "0.3"
@@ -64,9 +64,9 @@ def pytest_collection_modifyitems(config, items):
             continue
         func = item.nodeid.split("[")[0]
         slow = func in CATALOGUE_SLOW
-        if func == "tests/test_sampling.py::test_registry_sampler_matches_pdf":
+        if func == "tests/models/test_sampling.py::test_registry_sampler_matches_pdf":
             slow = str(item.callspec.params.get("cos_o")) != CATALOGUE_CHI2_VIEW
-        if name in COSTLY and func != "tests/test_checks.py::test_registry_models_pass_or_declare":
+        if name in COSTLY and func != "tests/verify/test_checks.py::test_registry_models_pass_or_declare":
             slow = slow or not (func.endswith("test_values_and_gradients_are_finite")
                                 and "f64" in item.nodeid)
         if slow:

@@ -44,7 +44,7 @@ import re
 
 import numpy as np
 
-from ..data import DataError, GonioData, channel_wavelengths
+from brdf_fit.data import DataError, GonioData, channel_wavelengths
 
 __all__ = ["read_csv", "write_csv", "QUANTITIES"]
 

@@ -33,7 +33,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..data import DataError, GonioData
+from brdf_fit.data import DataError, GonioData
 
 __all__ = [
     "MERL_DIMS",

@@ -26,7 +26,8 @@ import zipfile
 
 import numpy as np
 
-from ..data import DataError, GonioData
+from brdf_fit._version import __version__
+from brdf_fit.data import DataError, GonioData
 
 __all__ = ["SCHEMA", "SCHEMA_VERSION", "write_npz", "read_npz", "sidecar_path"]
 
@@ -75,7 +76,6 @@ def write_npz(data: GonioData, path, provenance: dict | None = None) -> tuple[st
     ``provenance``: extra JSON-able fields (recipe, instrument, command line). Returns the two
     paths."""
     npz, side = _paths(path)
-    from .. import __version__
 
     try:
         metadata = json.loads(json.dumps(data.metadata, default=_jsonable))

@@ -1,11 +1,11 @@
 """BRDF models. Each class holds eval, pdf and sample together; see :mod:`._base` for the
 conventions every model follows."""
 
-from ._base import AbstractBRDF, BRDFSample, astype, n_channels
-from .lambert import Lambert
-from .microfacet_brdf import MicrofacetBRDF
-from .mirror import Mirror
-from .mixture import Mixture, Scaled
+from brdf_fit.models._base import AbstractBRDF, BRDFSample, astype, n_channels
+from brdf_fit.models.lambert import Lambert
+from brdf_fit.models.microfacet_brdf import MicrofacetBRDF
+from brdf_fit.models.mirror import Mirror
+from brdf_fit.models.mixture import Mixture, Scaled
 
 __all__ = [
     "AbstractBRDF",

@@ -103,7 +103,7 @@ class AbstractBRDF(eqx.Module):
         return self.eval(wi, wo) * expand_channels(c, self.channels())
 
 
-def _sample_weight(model: AbstractBRDF, wi, wo, pdf):
+def sample_weight(model: AbstractBRDF, wi, wo, pdf):
     """``f cos / pdf`` with the failed-sample convention (0 where ``pdf = 0``)."""
     ok = pdf > 0
     f = model.eval_cos(wi, wo)

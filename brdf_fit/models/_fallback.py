@@ -13,11 +13,11 @@ import math
 
 import jax.numpy as jnp
 
-from .._frame import join, split
-from .._numerics import safe_div, safe_normalize3
-from .._warp import sample_cosine_hemisphere
-from ..microfacet import Beckmann, reflect_about
-from ._base import BRDFSample, _sample_weight
+from brdf_fit.core.frame import join, split
+from brdf_fit.core.microfacet import Beckmann, reflect_about
+from brdf_fit.core.numerics import safe_div, safe_normalize3
+from brdf_fit.core.warp import sample_cosine_hemisphere
+from brdf_fit.models._base import BRDFSample, sample_weight
 
 INV_PI = 1.0 / math.pi
 
@@ -48,4 +48,4 @@ def cosine_beckmann_sample(model, wo, uc, u, alpha, p_cos) -> BRDFSample:
     wi = jnp.where(use_cos[..., None], w_cos, w_lobe)
     ok = ok & (use_cos | ((ox * mx + oy * my + oz * mz) > 0))
     pdf = jnp.where(ok, model.pdf(wi, wo), 0.0)
-    return BRDFSample(wi=wi, pdf=pdf, weight=_sample_weight(model, wi, wo, pdf))
+    return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(model, wi, wo, pdf))

@@ -56,11 +56,12 @@ from typing import ClassVar
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._frame import join, split
-from .._numerics import pow5, safe_div, safe_normalize3, safe_sqrt
-from .._validate import ParameterError, check_param, concrete
-from .._warp import sample_cosine_hemisphere
-from ._base import AbstractBRDF, BRDFSample, _sample_weight, expand_channels
+from brdf_fit.core.frame import join, split
+from brdf_fit.core.numerics import pow5, safe_div, safe_normalize3, safe_sqrt
+from brdf_fit.core.params import Entry, Param
+from brdf_fit.core.validate import ParameterError, check_param, concrete
+from brdf_fit.core.warp import sample_cosine_hemisphere
+from brdf_fit.models._base import AbstractBRDF, BRDFSample, sample_weight, expand_channels
 
 __all__ = ["AshikhminShirley", "registry_entries"]
 
@@ -230,11 +231,11 @@ class AshikhminShirley(AbstractBRDF):
         else:
             wi = ws
         pdf = jnp.where(ok_o, self.pdf(wi, wo), 0.0)
-        return BRDFSample(wi=wi, pdf=pdf, weight=_sample_weight(self, wi, wo, pdf))
+        return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(self, wi, wo, pdf))
 
     def quadrature_lobe(self):
-        """Quadrature hint (:func:`brdf_fit.quadrature.lobe_rule`): a half-vector lobe of Beckmann
-        widths ``(sqrt(2/(nu+2)), sqrt(2/(nv+2)))`` (see the module docstring)."""
+        """Quadrature hint (:func:`brdf_fit.verify.albedo.lobe_rule`): a half-vector lobe of
+        Beckmann widths ``(sqrt(2/(nu+2)), sqrt(2/(nv+2)))`` (see the module docstring)."""
         ax = jnp.sqrt(2.0 / (jnp.asarray(self.nu) + 2.0))
         ay = jnp.sqrt(2.0 / (jnp.asarray(self.nv) + 2.0))
         return "half", (ax, ay)
@@ -255,8 +256,6 @@ _SPEC_FAILURES: dict[str, str] = {}
 
 def registry_entries():
     """:class:`brdf_fit.registry.Entry` objects of this module (registered by the registry)."""
-    from ..registry import Entry, Param
-
     def unit(name, default, doc):
         return Param(name, default, lo=0.0, hi=1.0, channels=True, doc=doc)
 

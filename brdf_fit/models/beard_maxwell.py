@@ -68,12 +68,13 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from .._frame import split
-from .._numerics import safe_div, safe_sqrt
-from .._validate import ParameterError, check_param, concrete
-from ..fresnel import conductor, f0_from_ior
-from ._base import AbstractBRDF, expand_channels
-from ._fallback import cosine_beckmann_pdf, cosine_beckmann_sample
+from brdf_fit.core.frame import split
+from brdf_fit.core.fresnel import conductor, f0_from_ior
+from brdf_fit.core.numerics import safe_div, safe_sqrt
+from brdf_fit.core.params import Entry, Param
+from brdf_fit.core.validate import ParameterError, check_param, concrete
+from brdf_fit.models._base import AbstractBRDF, expand_channels
+from brdf_fit.models._fallback import cosine_beckmann_pdf, cosine_beckmann_sample
 
 __all__ = ["BeardMaxwell", "calibrate_b", "registry_entries"]
 
@@ -220,7 +221,7 @@ class BeardMaxwell(AbstractBRDF):
         return cosine_beckmann_sample(self, wo, uc, u, self._sampler_alpha(), self._p_cos())
 
     def quadrature_lobe(self):
-        """Quadrature hint (:func:`brdf_fit.quadrature.lobe_rule`): a half-vector lobe of the
+        """Quadrature hint (:func:`brdf_fit.verify.albedo.lobe_rule`): a half-vector lobe of the
         first-surface width ``sigma``."""
         return "half", self._sampler_alpha()
 
@@ -251,8 +252,6 @@ _BM_FAILURES: dict[str, str] = {
 
 def registry_entries():
     """The ``beard-maxwell`` entry (Gaussian rho_fs, angles in radians, rho_D and rho_V in 1/sr)."""
-    from ..registry import Entry, Param
-
     return [
         Entry(
             name="beard-maxwell",

@@ -44,15 +44,16 @@ import math
 
 import jax.numpy as jnp
 
-from .._frame import split
-from .._numerics import ALPHA_MIN, safe_div, safe_normalize3
-from .._validate import check_param
-from ..fresnel import DielectricFresnel, dielectric, f0_from_ior
-from ..microfacet import EXP_UNDERFLOW, Beckmann, VCavity
-from ._base import AbstractBRDF, BRDFSample, _sample_weight, expand_channels
-from .lambert import Lambert
-from .microfacet_brdf import MicrofacetBRDF
-from .mixture import Mixture
+from brdf_fit.core.frame import split
+from brdf_fit.core.fresnel import DielectricFresnel, dielectric, f0_from_ior
+from brdf_fit.core.microfacet import EXP_UNDERFLOW, Beckmann, VCavity
+from brdf_fit.core.numerics import ALPHA_MIN, safe_div, safe_normalize3
+from brdf_fit.core.params import Entry, Param
+from brdf_fit.core.validate import check_param
+from brdf_fit.models._base import AbstractBRDF, BRDFSample, sample_weight, expand_channels
+from brdf_fit.models.lambert import Lambert
+from brdf_fit.models.microfacet_brdf import MicrofacetBRDF
+from brdf_fit.models.mixture import Mixture
 
 __all__ = ["CookTorrance1982Specular", "cook_torrance_1982", "beckmann_ct1982",
            "registry_entries"]
@@ -127,7 +128,7 @@ class CookTorrance1982Specular(AbstractBRDF):
     def sample(self, wo, uc, u):
         wi = self._sampler().sample(wo, uc, u).wi
         pdf = self.pdf(wi, wo)
-        return BRDFSample(wi=wi, pdf=pdf, weight=_sample_weight(self, wi, wo, pdf))
+        return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(self, wi, wo, pdf))
 
     def quadrature_lobe(self):
         """Quadrature hint: a half-vector lobe of Beckmann width ``m``."""
@@ -153,8 +154,6 @@ _CT_1982 = (
 
 
 def registry_entries():
-    from ..registry import Entry, Param
-
     return [
         Entry(
             name="cook-torrance-1982",

@@ -99,12 +99,13 @@ import math
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._frame import split
-from .._numerics import safe_pow, safe_sqrt
-from .._validate import ParameterError, check_param, concrete
-from .._warp import sample_cosine_hemisphere
-from ..fresnel import dielectric
-from ._base import AbstractBRDF, BRDFSample, _sample_weight
+from brdf_fit.core.frame import split
+from brdf_fit.core.fresnel import dielectric
+from brdf_fit.core.numerics import safe_pow, safe_sqrt
+from brdf_fit.core.params import Entry, Param
+from brdf_fit.core.validate import ParameterError, check_param, concrete
+from brdf_fit.core.warp import sample_cosine_hemisphere
+from brdf_fit.models._base import AbstractBRDF, BRDFSample, sample_weight
 
 __all__ = ["GranierHeidrich", "WAVELENGTHS_NM", "registry_entries"]
 
@@ -226,10 +227,10 @@ class GranierHeidrich(AbstractBRDF):
     def sample(self, wo, uc, u):
         wi = sample_cosine_hemisphere(u)
         pdf = self.pdf(wi, wo)
-        return BRDFSample(wi=wi, pdf=pdf, weight=_sample_weight(self, wi, wo, pdf))
+        return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(self, wi, wo, pdf))
 
     def quadrature_lobe(self):
-        """Quadrature hint (:func:`brdf_fit.quadrature.lobe_rule`): power-cosine lobes about the
+        """Quadrature hint (:func:`brdf_fit.verify.albedo.lobe_rule`): power-cosine lobes about the
         mirror direction; the wider one (smaller exponent) sets the grading."""
         return "mirror", jnp.minimum(jnp.asarray(self.e0), jnp.asarray(self.e1))
 
@@ -254,8 +255,6 @@ def registry_entries():
     ``expected_failures`` hold values measured with :func:`brdf_fit.checks.run_checks` at the
     defaults (float64; see tests/test_granier_heidrich.py).
     """
-    from ..registry import Entry, Param
-
     return [
         Entry(
             name="granier-heidrich",

@@ -64,7 +64,7 @@ Sampler: cosine-weighted hemisphere (``pdf = n.wi/pi``, exact); ``weight = pi f`
 after refraction and the Fresnel factors, so a lobe-matched mixture was not needed for the checks.
 
 Quadrature: no ``quadrature_lobe()`` hint (neither the mirror nor the half-vector rule fits a
-retro-reflection lobe), so :func:`brdf_fit.quadrature.directional_albedo` uses the generic
+retro-reflection lobe), so :func:`brdf_fit.verify.albedo.directional_albedo` uses the generic
 64 x 128 rule: accurate to ~1e-11 for ``g >= -0.9`` (W = 1, tau = 100, eta = 1.5: 0.9128479733
 vs 256 x 512), but it under-resolves the narrow retro lobe of ``g -> -0.99`` (0.813 vs 1.025 at
 normal view, published form): use a finer ``generic`` rule there.
@@ -82,12 +82,13 @@ import math
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._frame import split
-from .._numerics import safe_sqrt
-from .._validate import ParameterError, check_param, concrete
-from .._warp import sample_cosine_hemisphere
-from ..fresnel import dielectric
-from ._base import AbstractBRDF, BRDFSample, _sample_weight, expand_channels
+from brdf_fit.core.frame import split
+from brdf_fit.core.fresnel import dielectric
+from brdf_fit.core.numerics import safe_sqrt
+from brdf_fit.core.params import Entry, Param
+from brdf_fit.core.validate import ParameterError, check_param, concrete
+from brdf_fit.core.warp import sample_cosine_hemisphere
+from brdf_fit.models._base import AbstractBRDF, BRDFSample, sample_weight, expand_channels
 
 __all__ = ["HanrahanKrueger", "henyey_greenstein", "registry_entries"]
 
@@ -186,7 +187,7 @@ class HanrahanKrueger(AbstractBRDF):
     def sample(self, wo, uc, u):
         wi = sample_cosine_hemisphere(u)
         pdf = self.pdf(wi, wo)
-        return BRDFSample(wi=wi, pdf=pdf, weight=_sample_weight(self, wi, wo, pdf))
+        return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(self, wi, wo, pdf))
 
     def selection_hint(self):
         return jnp.max(jnp.asarray(self.albedo))
@@ -201,8 +202,6 @@ def registry_entries():
     ``run_checks("hanrahan-krueger")`` passes every check at the defaults (float64), so no
     expected failures are declared (see tests/test_hanrahan_krueger.py).
     """
-    from ..registry import Entry, Param
-
     return [
         Entry(
             name="hanrahan-krueger",

@@ -111,12 +111,13 @@ import jax.numpy as jnp
 import numpy as np
 from jax.scipy.special import erf, erfc, gammaln
 
-from .._frame import split
-from .._numerics import safe_div, safe_log, safe_sqrt
-from .._validate import ParameterError, check_param, concrete
-from ..fresnel import conductor, f0_from_ior
-from ._base import AbstractBRDF, expand_channels
-from ._fallback import cosine_beckmann_pdf, cosine_beckmann_sample
+from brdf_fit.core.frame import split
+from brdf_fit.core.fresnel import conductor, f0_from_ior
+from brdf_fit.core.numerics import safe_div, safe_log, safe_sqrt
+from brdf_fit.core.params import Entry, Param
+from brdf_fit.core.validate import ParameterError, check_param, concrete
+from brdf_fit.models._base import AbstractBRDF, expand_channels
+from brdf_fit.models._fallback import cosine_beckmann_pdf, cosine_beckmann_sample
 
 __all__ = ["HTSG", "registry_entries", "N_TERMS", "G_SERIES"]
 
@@ -318,7 +319,7 @@ class HTSG(AbstractBRDF):
         return cosine_beckmann_sample(self, wo, uc, u, self._sampler_alpha(), self._p_cos())
 
     def quadrature_lobe(self):
-        """Quadrature hint (:func:`brdf_fit.quadrature.lobe_rule`): a half-vector lobe of the
+        """Quadrature hint (:func:`brdf_fit.verify.albedo.lobe_rule`): a half-vector lobe of the
         sampler's Beckmann width (the directional-diffuse lobe's rough-limit width)."""
         return "half", self._sampler_alpha()
 
@@ -338,8 +339,6 @@ _HTSG_FAILURES: dict[str, str] = {}
 def registry_entries():
     """The ``htsg`` entry (wavelengths fixed at :data:`RGB_WAVELENGTHS`: with them free, sigma0,
     tau and the wavelength could all be scaled together without changing the BRDF)."""
-    from ..registry import Entry, Param
-
     return [
         Entry(
             name="htsg",

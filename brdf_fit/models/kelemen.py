@@ -52,13 +52,15 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
-from .._frame import join, split
-from .._numerics import ALPHA_MIN, pow5, safe_div, safe_normalize3, safe_sqrt
-from .._validate import check_param
-from .._warp import sample_cosine_hemisphere
-from ..fresnel import schlick
-from ..microfacet import Beckmann, reflect_about
-from ._base import AbstractBRDF, BRDFSample, _sample_weight, expand_channels
+from brdf_fit.core.frame import join, split
+from brdf_fit.core.fresnel import schlick
+from brdf_fit.core.microfacet import Beckmann, reflect_about
+from brdf_fit.core.numerics import ALPHA_MIN, pow5, safe_div, safe_normalize3, safe_sqrt
+from brdf_fit.core.params import Entry, Param
+from brdf_fit.core.quadrature import halfvector_rule
+from brdf_fit.core.validate import check_param
+from brdf_fit.core.warp import sample_cosine_hemisphere
+from brdf_fit.models._base import AbstractBRDF, BRDFSample, sample_weight, expand_channels
 
 __all__ = ["Kelemen", "registry_entries", "albedo_table", "specular_albedo"]
 
@@ -99,7 +101,6 @@ def _beckmann(alpha):
 def albedo_table(alpha):
     """``(A, B)`` at the table's nodes ``mu_k`` (:data:`TABLE_NODES` each): the specular albedo
     is ``a_s(mu_k) = f0 A_k + (1 - f0) B_k``. Differentiable in ``alpha``."""
-    from ..quadrature import halfvector_rule
 
     alpha = jnp.asarray(alpha)
     out_dt = alpha.dtype
@@ -234,7 +235,7 @@ class Kelemen(AbstractBRDF):
         wd = sample_cosine_hemisphere(u)
         wi = jnp.where((uc < p_s)[..., None], ws, wd)
         pdf = jnp.where(ok, self.pdf(wi, wo), 0.0)
-        return BRDFSample(wi=wi, pdf=pdf, weight=_sample_weight(self, wi, wo, pdf))
+        return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(self, wi, wo, pdf))
 
     def quadrature_lobe(self):
         """Quadrature hint: a half-vector lobe of Beckmann width ``alpha`` (the matte term is
@@ -252,8 +253,6 @@ _KSK_2001 = (
 
 
 def registry_entries():
-    from ..registry import Entry, Param
-
     return [
         Entry(
             name="kelemen",

@@ -44,7 +44,7 @@ sanitised axis (the normal). The registry entry bounds ``|C| <= 1.1`` and ``n <=
 ``|C|^n <= 1.1^500 = 5e20`` stays finite in float32, values and gradients.
 
 Quadrature: the lobes are about ``s_j``, not the mirror direction, and declare no
-``quadrature_lobe()``; :func:`brdf_fit.quadrature.directional_albedo` integrates them with the
+``quadrature_lobe()``; :func:`brdf_fit.verify.albedo.directional_albedo` integrates them with the
 generic 64 x 128 Gauss-Legendre x trapezoid rule. Measured against a brute-force 1024 x 2048
 rule (tests/test_lafortune.py): relative error ~1e-14 for the default entry (n = 12 and 4) and
 for normalised Phong-like lobes up to n = 300, 3e-9 at n = 500 (the entry's bound), but
@@ -60,11 +60,12 @@ from typing import ClassVar
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._frame import frame_from_normal, join, split, to_world
-from .._numerics import NORM_EPS, safe_log, safe_normalize3, safe_sqrt
-from .._validate import ParameterError, check_param, concrete
-from .._warp import sample_cosine_hemisphere
-from ._base import AbstractBRDF, BRDFSample, _sample_weight, expand_channels
+from brdf_fit.core.frame import frame_from_normal, join, split, to_world
+from brdf_fit.core.numerics import NORM_EPS, safe_log, safe_normalize3, safe_sqrt
+from brdf_fit.core.params import Entry, Param
+from brdf_fit.core.validate import ParameterError, check_param, concrete
+from brdf_fit.core.warp import sample_cosine_hemisphere
+from brdf_fit.models._base import AbstractBRDF, BRDFSample, sample_weight, expand_channels
 
 __all__ = ["CosineLobe", "Lafortune", "registry_entries"]
 
@@ -255,7 +256,7 @@ class Lafortune(AbstractBRDF):
             wi = jnp.where(pick[..., None], ws, wi)
             cdf = cdf + pj
         pdf = jnp.where(okv, self.pdf(wi, wo), 0.0)
-        return BRDFSample(wi=wi, pdf=pdf, weight=_sample_weight(self, wi, wo, pdf))
+        return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(self, wi, wo, pdf))
 
     def selection_hint(self):
         """``max rho_d + sum_j max(rho_s,j) max(|C_j|)^n_j 2 pi/(n_j + 2)`` (an upper estimate of
@@ -280,8 +281,6 @@ N_MAX = 500.0
 
 def registry_entries():
     """:class:`brdf_fit.registry.Entry` for the two-lobe Lafortune model (not registered here)."""
-    from ..registry import Entry, Param
-
     def coef(name, default, doc):
         return Param(name, default, lo=-C_MAX, hi=C_MAX, doc=doc)
 

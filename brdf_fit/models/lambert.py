@@ -12,9 +12,9 @@ import math
 
 import jax.numpy as jnp
 
-from .._validate import check_param
-from .._warp import cosine_hemisphere_pdf, sample_cosine_hemisphere
-from ._base import AbstractBRDF, BRDFSample, _sample_weight, expand_channels
+from brdf_fit.core.validate import check_param
+from brdf_fit.core.warp import cosine_hemisphere_pdf, sample_cosine_hemisphere
+from brdf_fit.models._base import AbstractBRDF, BRDFSample, sample_weight, expand_channels
 
 INV_PI = 1.0 / math.pi
 
@@ -38,7 +38,7 @@ class Lambert(AbstractBRDF):
     def sample(self, wo, uc, u):
         wi = sample_cosine_hemisphere(u)
         pdf = self.pdf(wi, wo)
-        return BRDFSample(wi=wi, pdf=pdf, weight=_sample_weight(self, wi, wo, pdf))
+        return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(self, wi, wo, pdf))
 
     def selection_hint(self):
         return jnp.max(jnp.asarray(self.rho))

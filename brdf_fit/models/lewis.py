@@ -40,8 +40,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validate import ParameterError, check_param, concrete
-from .phong import ModifiedPhong, _check_exponent
+from brdf_fit.core.params import Entry, Param
+from brdf_fit.core.validate import ParameterError, check_param, concrete
+from brdf_fit.models.phong import ModifiedPhong, _check_exponent
 
 __all__ = ["Lewis", "registry_entries"]
 
@@ -77,8 +78,6 @@ def Lewis(kd=0.4, ks=0.4, exponent=30.0) -> ModifiedPhong:
 
 def registry_entries():
     """:class:`brdf_fit.registry.Entry` for Lewis's normalised Phong (not registered here)."""
-    from ..registry import Entry, Param
-
     return [
         Entry(
             name="lewis",

@@ -22,17 +22,17 @@ from __future__ import annotations
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._frame import join, split
-from .._numerics import safe_div, safe_normalize3
-from ..fresnel import SchlickFresnel
-from ..microfacet import (
+from brdf_fit.core.frame import join, split
+from brdf_fit.core.fresnel import SchlickFresnel
+from brdf_fit.core.microfacet import (
     GGX,
     SmithHeightCorrelated,
     VCavity,
     reflect_about,
     vcavity_sample_visible,
 )
-from ._base import AbstractBRDF, BRDFSample, _sample_weight, expand_channels
+from brdf_fit.core.numerics import safe_div, safe_normalize3
+from brdf_fit.models._base import AbstractBRDF, BRDFSample, sample_weight, expand_channels
 
 _SAMPLING = ("auto", "visible", "ndf")
 
@@ -115,7 +115,7 @@ class MicrofacetBRDF(AbstractBRDF):
             m = dist.sample_normal(u1, u2)
         wi = join(*reflect_about(ox, oy, oz, *m))
         pdf = jnp.where(ok, self.pdf(wi, wo), 0.0)
-        return BRDFSample(wi=wi, pdf=pdf, weight=_sample_weight(self, wi, wo, pdf))
+        return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(self, wi, wo, pdf))
 
     def selection_hint(self):
         return self.fresnel.reflectance_hint()

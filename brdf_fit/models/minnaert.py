@@ -37,10 +37,11 @@ import math
 
 import jax.numpy as jnp
 
-from .._numerics import safe_pow
-from .._validate import ParameterError, check_param, concrete
-from ._base import AbstractBRDF, BRDFSample, _sample_weight, expand_channels
-from .phong import _power_cosine_local, _sanitize_wo, _upper
+from brdf_fit.core.numerics import safe_pow
+from brdf_fit.core.params import Entry, Param
+from brdf_fit.core.validate import ParameterError, check_param, concrete
+from brdf_fit.models._base import AbstractBRDF, BRDFSample, sample_weight, expand_channels
+from brdf_fit.models.phong import _power_cosine_local, _sanitize_wo, _upper
 
 __all__ = ["Minnaert", "registry_entries"]
 
@@ -89,7 +90,7 @@ class Minnaert(AbstractBRDF):
         # horizon, where pdf = 0: a failed sample
         wi = _power_cosine_local(u, self.k)
         pdf = jnp.where(ok, self.pdf(wi, wo), 0.0)
-        return BRDFSample(wi=wi, pdf=pdf, weight=_sample_weight(self, wi, wo, pdf))
+        return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(self, wi, wo, pdf))
 
     def albedo(self, wo):
         """Closed-form directional albedo ``rho cv^(k-1)`` (0 for ``wo`` at or below the
@@ -116,8 +117,6 @@ _MINNAERT_FAILURES: dict[str, str] = {
 
 def registry_entries():
     """:class:`brdf_fit.registry.Entry` for the normalised Minnaert model (not registered here)."""
-    from ..registry import Entry, Param
-
     return [
         Entry(
             name="minnaert",

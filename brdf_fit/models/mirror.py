@@ -14,9 +14,9 @@ from typing import ClassVar
 
 import jax.numpy as jnp
 
-from .._frame import mirror
-from ..fresnel import SchlickFresnel
-from ._base import AbstractBRDF, BRDFSample, expand_channels
+from brdf_fit.core.frame import mirror
+from brdf_fit.core.fresnel import SchlickFresnel
+from brdf_fit.models._base import AbstractBRDF, BRDFSample, expand_channels
 
 
 class Mirror(AbstractBRDF):

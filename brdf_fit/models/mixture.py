@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from .._validate import check_param
-from ._base import AbstractBRDF, BRDFSample, _sample_weight, expand_channels
+from brdf_fit.core.validate import check_param
+from brdf_fit.models._base import AbstractBRDF, BRDFSample, sample_weight, expand_channels
 
 
 class Scaled(AbstractBRDF):
@@ -92,7 +92,7 @@ class Mixture(AbstractBRDF):
             s = lobe.sample(wo, uc2, u)
             wi = s.wi if wi is None else jnp.where((idx == j)[..., None], s.wi, wi)
         pdf = self.pdf(wi, wo)
-        return BRDFSample(wi=wi, pdf=pdf, weight=_sample_weight(self, wi, wo, pdf))
+        return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(self, wi, wo, pdf))
 
     def selection_hint(self):
         return sum(lobe.selection_hint() for lobe in self.lobes)

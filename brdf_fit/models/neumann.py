@@ -40,10 +40,11 @@ import math
 
 import jax.numpy as jnp
 
-from .._numerics import safe_div
-from .._validate import check_param
-from ._base import AbstractBRDF, BRDFSample, _sample_weight, expand_channels
-from .phong import (
+from brdf_fit.core.numerics import safe_div
+from brdf_fit.core.params import Entry, Param
+from brdf_fit.core.validate import check_param
+from brdf_fit.models._base import AbstractBRDF, BRDFSample, sample_weight, expand_channels
+from brdf_fit.models.phong import (
     _check_exponent,
     _lobe_pdf,
     _max_over_channels,
@@ -82,7 +83,7 @@ class NeumannPhong(AbstractBRDF):
         wos, ok = _sanitize_wo(wo)
         wi = _sample_lobe_about_mirror(wos, u, self.exponent)
         pdf = jnp.where(ok, self.pdf(wi, wo), 0.0)
-        return BRDFSample(wi=wi, pdf=pdf, weight=_sample_weight(self, wi, wo, pdf))
+        return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(self, wi, wo, pdf))
 
     def quadrature_lobe(self):
         """Quadrature hint: a power-cosine lobe about the mirror direction."""
@@ -99,8 +100,6 @@ _NNSK_1999 = (
 
 
 def registry_entries():
-    from ..registry import Entry, Param
-
     return [
         Entry(
             name="neumann",

@@ -73,12 +73,13 @@ import math
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._frame import split
-from .._numerics import safe_div, safe_sqrt
-from .._validate import ParameterError, check_param, concrete
-from .._warp import sample_cosine_hemisphere
-from ._base import AbstractBRDF, BRDFSample, _sample_weight, expand_channels
-from .phong import _upper
+from brdf_fit.core.frame import split
+from brdf_fit.core.numerics import safe_div, safe_sqrt
+from brdf_fit.core.params import Entry, Param
+from brdf_fit.core.validate import ParameterError, check_param, concrete
+from brdf_fit.core.warp import sample_cosine_hemisphere
+from brdf_fit.models._base import AbstractBRDF, BRDFSample, sample_weight, expand_channels
+from brdf_fit.models.phong import _upper
 
 __all__ = ["OrenNayar", "registry_entries"]
 
@@ -181,7 +182,7 @@ class OrenNayar(AbstractBRDF):
     def sample(self, wo, uc, u):
         wi = sample_cosine_hemisphere(u)
         pdf = self.pdf(wi, wo)
-        return BRDFSample(wi=wi, pdf=pdf, weight=_sample_weight(self, wi, wo, pdf))
+        return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(self, wi, wo, pdf))
 
     def selection_hint(self):
         return jnp.max(jnp.asarray(self.rho))
@@ -190,8 +191,6 @@ class OrenNayar(AbstractBRDF):
 def registry_entries():
     """:class:`brdf_fit.registry.Entry` objects for the two Oren-Nayar variants (not registered
     here)."""
-    from ..registry import Entry, Param
-
     def params():
         return (
             Param("rho", (0.8, 0.6, 0.4), lo=0.0, hi=1.0, channels=True,

@@ -25,12 +25,13 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from .._frame import frame_from_normal, join, split, to_world
-from .._numerics import safe_div, safe_normalize3, safe_pow, safe_sqrt
-from .._validate import ParameterError, check_param, concrete
-from .._warp import sample_cosine_hemisphere
-from ..fresnel import dielectric, ior_from_f0, schlick
-from ._base import AbstractBRDF, BRDFSample, _sample_weight, expand_channels
+from brdf_fit.core.frame import frame_from_normal, join, split, to_world
+from brdf_fit.core.fresnel import dielectric, ior_from_f0, schlick
+from brdf_fit.core.numerics import safe_div, safe_normalize3, safe_pow, safe_sqrt
+from brdf_fit.core.params import Entry, Param
+from brdf_fit.core.validate import ParameterError, check_param, concrete
+from brdf_fit.core.warp import sample_cosine_hemisphere
+from brdf_fit.models._base import AbstractBRDF, BRDFSample, sample_weight, expand_channels
 
 __all__ = [
     "PhongOriginal",
@@ -164,10 +165,10 @@ class PhongOriginal(AbstractBRDF):
         wos, ok = _sanitize_wo(wo)
         wi = _sample_lobe_about_mirror(wos, u, self.exponent)
         pdf = jnp.where(ok, self.pdf(wi, wo), 0.0)
-        return BRDFSample(wi=wi, pdf=pdf, weight=_sample_weight(self, wi, wo, pdf))
+        return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(self, wi, wo, pdf))
 
     def quadrature_lobe(self):
-        """Quadrature hint (:func:`brdf_fit.quadrature.lobe_rule`): a power-cosine lobe about the
+        """Quadrature hint (:func:`brdf_fit.verify.albedo.lobe_rule`): a power-cosine lobe about the
         mirror direction."""
         return "mirror", self.exponent
 
@@ -192,7 +193,7 @@ def _mixture_sample(model, wo, uc, u, p_d):
     ws = _sample_lobe_about_mirror(wos, u, model.exponent)
     wi = jnp.where((uc < p_d)[..., None], wd, ws)
     pdf = jnp.where(ok, model.pdf(wi, wo), 0.0)
-    return BRDFSample(wi=wi, pdf=pdf, weight=_sample_weight(model, wi, wo, pdf))
+    return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(model, wi, wo, pdf))
 
 
 def _mixture_pdf(wi, wo, exponent, p_d):
@@ -251,7 +252,7 @@ class ModifiedPhong(AbstractBRDF):
         return _mixture_sample(self, wo, uc, u, self._p_d())
 
     def quadrature_lobe(self):
-        """Quadrature hint (:func:`brdf_fit.quadrature.lobe_rule`): a power-cosine lobe about the
+        """Quadrature hint (:func:`brdf_fit.verify.albedo.lobe_rule`): a power-cosine lobe about the
         mirror direction."""
         return "mirror", self.exponent
 
@@ -321,7 +322,7 @@ class ModifiedPhongFresnel(AbstractBRDF):
         return _mixture_sample(self, wo, uc, u, self._p_d())
 
     def quadrature_lobe(self):
-        """Quadrature hint (:func:`brdf_fit.quadrature.lobe_rule`): a power-cosine lobe about the
+        """Quadrature hint (:func:`brdf_fit.verify.albedo.lobe_rule`): a power-cosine lobe about the
         mirror direction."""
         return "mirror", self.exponent
 
@@ -406,10 +407,10 @@ class BlinnPhong(AbstractBRDF):
         wi = 2.0 * d * h - wos
         ok = ok & (d[..., 0] > 0)
         pdf = jnp.where(ok, self.pdf(wi, wo), 0.0)
-        return BRDFSample(wi=wi, pdf=pdf, weight=_sample_weight(self, wi, wo, pdf))
+        return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(self, wi, wo, pdf))
 
     def quadrature_lobe(self):
-        """Quadrature hint (:func:`brdf_fit.quadrature.lobe_rule`): a half-vector lobe of the
+        """Quadrature hint (:func:`brdf_fit.verify.albedo.lobe_rule`): a half-vector lobe of the
         equivalent Beckmann width ``sqrt(2/(n+2))`` (Walter et al. 2007, sec. 5.2)."""
         return "half", jnp.sqrt(2.0 / (jnp.asarray(self.exponent) + 2.0))
 
@@ -445,8 +446,6 @@ def registry_entries():
     ``expected_failures`` hold the values measured with :func:`brdf_fit.checks.run_checks` at the
     default parameters (see tests/test_phong.py for the measurements that back them).
     """
-    from ..registry import Entry, Param
-
     def unit(name, default, doc):
         return Param(name, default, lo=0.0, hi=1.0, channels=True, doc=doc)
 

@@ -25,12 +25,13 @@ import math
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._frame import frame_from_normal, mirror, to_world
-from .._numerics import safe_pow
-from .._validate import check_param
-from .._warp import sample_power_cosine
-from ..phong_norm import ARVO_MAX_N, METHODS, normaliser
-from ._base import AbstractBRDF, BRDFSample, _sample_weight, expand_channels
+from brdf_fit.core.frame import frame_from_normal, mirror, to_world
+from brdf_fit.core.numerics import safe_pow
+from brdf_fit.core.params import Entry, Param
+from brdf_fit.core.phong_normaliser import ARVO_MAX_N, METHODS, normaliser
+from brdf_fit.core.validate import check_param
+from brdf_fit.core.warp import sample_power_cosine
+from brdf_fit.models._base import AbstractBRDF, BRDFSample, sample_weight, expand_channels
 
 __all__ = ["EnergyNormalizedPhong", "registry_entries"]
 
@@ -91,10 +92,10 @@ class EnergyNormalizedPhong(AbstractBRDF):
         t, b, r = frame_from_normal(mirror(wo))
         wi = to_world(local, t, b, r)
         pdf = self.pdf(wi, wo)
-        return BRDFSample(wi=wi, pdf=pdf, weight=_sample_weight(self, wi, wo, pdf))
+        return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(self, wi, wo, pdf))
 
     def quadrature_lobe(self):
-        """Quadrature hint (:func:`brdf_fit.quadrature.lobe_rule`): a power-cosine lobe about the
+        """Quadrature hint (:func:`brdf_fit.verify.albedo.lobe_rule`): a power-cosine lobe about the
         mirror direction."""
         return "mirror", self._n()
 
@@ -105,8 +106,6 @@ class EnergyNormalizedPhong(AbstractBRDF):
 def registry_entries():
     """Registry entries (not registered here): ``phong-energy-normalized`` (Mallett-Yuksel, real
     exponent) and ``phong-energy-normalized-arvo`` (Arvo recurrence, integer exponent)."""
-    from ..registry import Entry, Param
-
     reason = {
         "reciprocity": (
             "normalised per view direction (Arvo 1995; Mallett & Yuksel 2020): not reciprocal"

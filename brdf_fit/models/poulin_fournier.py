@@ -71,11 +71,12 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from .._numerics import safe_div, safe_pow, safe_sqrt
-from .._validate import ParameterError, check_param, concrete
-from .._warp import sample_cosine_hemisphere
-from ._base import AbstractBRDF, BRDFSample, _sample_weight, expand_channels
-from .phong import _cos_alpha_r, _sample_lobe_about_mirror, _sanitize_wo
+from brdf_fit.core.numerics import safe_div, safe_pow, safe_sqrt
+from brdf_fit.core.params import Entry, Param
+from brdf_fit.core.validate import ParameterError, check_param, concrete
+from brdf_fit.core.warp import sample_cosine_hemisphere
+from brdf_fit.models._base import AbstractBRDF, BRDFSample, sample_weight, expand_channels
+from brdf_fit.models.phong import _cos_alpha_r, _sample_lobe_about_mirror, _sanitize_wo
 
 __all__ = ["PoulinFournier", "registry_entries", "visible_interval"]
 
@@ -235,7 +236,7 @@ class PoulinFournier(AbstractBRDF):
         ws = _sample_lobe_about_mirror(wos, u, self.exponent)
         wi = jnp.where((uc < self._p_d())[..., None], wd, ws)
         pdf = jnp.where(ok, self.pdf(wi, wo), 0.0)
-        return BRDFSample(wi=wi, pdf=pdf, weight=_sample_weight(self, wi, wo, pdf))
+        return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(self, wi, wo, pdf))
 
     def selection_hint(self):
         return jnp.max(jnp.asarray(self.kd)) + jnp.max(jnp.asarray(self.ks))
@@ -249,8 +250,6 @@ _FAILURES: dict[str, str] = {}
 
 def registry_entries():
     """:class:`brdf_fit.registry.Entry` objects of this module (registered by the registry)."""
-    from ..registry import Entry, Param
-
     return [
         Entry(
             name="poulin-fournier",

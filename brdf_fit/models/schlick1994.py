@@ -71,11 +71,12 @@ from typing import ClassVar
 
 import jax.numpy as jnp
 
-from .._frame import join, split
-from .._numerics import pow5, safe_normalize3, safe_sqrt
-from .._validate import ParameterError, check_param, concrete
-from .._warp import sample_cosine_hemisphere
-from ._base import AbstractBRDF, BRDFSample, _sample_weight, expand_channels
+from brdf_fit.core.frame import join, split
+from brdf_fit.core.numerics import pow5, safe_normalize3, safe_sqrt
+from brdf_fit.core.params import Entry, Param
+from brdf_fit.core.validate import ParameterError, check_param, concrete
+from brdf_fit.core.warp import sample_cosine_hemisphere
+from brdf_fit.models._base import AbstractBRDF, BRDFSample, sample_weight, expand_channels
 
 __all__ = ["Schlick1994", "registry_entries"]
 
@@ -221,10 +222,10 @@ class Schlick1994(AbstractBRDF):
         wd = sample_cosine_hemisphere(u)
         wi = jnp.where((uc < self._p_d())[..., None], wd, join(x, y, z))
         pdf = jnp.where(ok_o, self.pdf(wi, wo), 0.0)
-        return BRDFSample(wi=wi, pdf=pdf, weight=_sample_weight(self, wi, wo, pdf))
+        return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(self, wi, wo, pdf))
 
     def quadrature_lobe(self):
-        """Quadrature hint (:func:`brdf_fit.quadrature.lobe_rule`): a half-vector lobe of width
+        """Quadrature hint (:func:`brdf_fit.verify.albedo.lobe_rule`): a half-vector lobe of width
         ``sqrt(r)/4`` (see the module docstring for why a quarter of the GGX width)."""
         return "half", 0.25 * jnp.sqrt(jnp.asarray(self.r))
 
@@ -248,8 +249,6 @@ _FAILURES: dict[str, str] = {
 
 def registry_entries():
     """:class:`brdf_fit.registry.Entry` objects of this module (registered by the registry)."""
-    from ..registry import Entry, Param
-
     return [
         Entry(
             name="schlick-1994",

@@ -58,12 +58,13 @@ import math
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._frame import split
-from .._numerics import safe_div, safe_hypot, safe_pow
-from .._validate import ParameterError, check_param, concrete
-from .._warp import sample_cosine_hemisphere
-from ._base import AbstractBRDF, BRDFSample, _sample_weight, expand_channels
-from .phong import _cos_alpha_r, _sample_lobe_about_mirror, _sanitize_wo
+from brdf_fit.core.frame import split
+from brdf_fit.core.numerics import safe_div, safe_hypot, safe_pow
+from brdf_fit.core.params import Entry, Param
+from brdf_fit.core.validate import ParameterError, check_param, concrete
+from brdf_fit.core.warp import sample_cosine_hemisphere
+from brdf_fit.models._base import AbstractBRDF, BRDFSample, sample_weight, expand_channels
+from brdf_fit.models.phong import _cos_alpha_r, _sample_lobe_about_mirror, _sanitize_wo
 
 __all__ = ["Strauss", "registry_entries", "strauss_fresnel", "strauss_shadow"]
 
@@ -182,10 +183,10 @@ class Strauss(AbstractBRDF):
         ws = _sample_lobe_about_mirror(wos, u, self.exponent())
         wi = jnp.where((uc < self._p_d())[..., None], wd, ws)
         pdf = jnp.where(ok, self.pdf(wi, wo), 0.0)
-        return BRDFSample(wi=wi, pdf=pdf, weight=_sample_weight(self, wi, wo, pdf))
+        return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(self, wi, wo, pdf))
 
     def quadrature_lobe(self):
-        """Quadrature hint (:func:`brdf_fit.quadrature.lobe_rule`): the power-cosine lobe about
+        """Quadrature hint (:func:`brdf_fit.verify.albedo.lobe_rule`): the power-cosine lobe about
         the mirror direction with Strauss's exponent."""
         return "mirror", self.exponent()
 
@@ -211,8 +212,6 @@ _FAILURES: dict[str, str] = {
 
 def registry_entries():
     """:class:`brdf_fit.registry.Entry` objects of this module (registered by the registry)."""
-    from ..registry import Entry, Param
-
     return [
         Entry(
             name="strauss",

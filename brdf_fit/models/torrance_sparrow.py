@@ -44,7 +44,7 @@ Beckmann's, which is the registry's "torrance-sparrow" entry.
 The distribution :class:`GaussianAngle` is duck-typed to the interface
 :class:`brdf_fit.models.MicrofacetBRDF` needs with V-cavity masking (``D``, ``sample_normal``,
 ``pdf_normal``, ``supports_visible``); ``alpha_x``/``alpha_y`` let
-:func:`brdf_fit.quadrature.lobe_widths` and :mod:`brdf_fit.checks` (ndf-normalisation,
+:func:`brdf_fit.verify.albedo.lobe_widths` and :mod:`brdf_fit.checks` (ndf-normalisation,
 weak and full white furnace) treat it as a lobe of that width. It has no Smith ``Lambda``.
 """
 
@@ -58,13 +58,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._numerics import ALPHA_MIN, safe_sqrt
-from .._validate import check_param
-from ..fresnel import DielectricFresnel
-from ..microfacet import VCavity
-from .lambert import Lambert
-from .microfacet_brdf import MicrofacetBRDF
-from .mixture import Mixture, Scaled
+from brdf_fit.core.fresnel import DielectricFresnel
+from brdf_fit.core.microfacet import VCavity
+from brdf_fit.core.numerics import ALPHA_MIN, safe_sqrt
+from brdf_fit.core.params import Entry, Param
+from brdf_fit.core.validate import check_param
+from brdf_fit.models.lambert import Lambert
+from brdf_fit.models.microfacet_brdf import MicrofacetBRDF
+from brdf_fit.models.mixture import Mixture, Scaled
 
 __all__ = ["GaussianAngle", "registry_entries"]
 
@@ -217,8 +218,6 @@ _TS_1967 = (
 def registry_entries():
     """The ``torrance-sparrow-gaussian`` entry (the registry's ``torrance-sparrow`` uses
     Beckmann's D instead)."""
-    from ..registry import Entry, Param
-
     return [
         Entry(
             name="torrance-sparrow-gaussian",

@@ -92,11 +92,12 @@ from typing import ClassVar
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._frame import join, split
-from .._numerics import ALPHA_MIN, safe_div
-from .._validate import ParameterError, check_param, concrete
-from .._warp import sample_cosine_hemisphere
-from ._base import AbstractBRDF, BRDFSample, _sample_weight, expand_channels
+from brdf_fit.core.frame import join, split
+from brdf_fit.core.numerics import ALPHA_MIN, safe_div
+from brdf_fit.core.params import Entry, Param
+from brdf_fit.core.validate import ParameterError, check_param, concrete
+from brdf_fit.core.warp import sample_cosine_hemisphere
+from brdf_fit.models._base import AbstractBRDF, BRDFSample, sample_weight, expand_channels
 
 __all__ = ["Ward", "VARIANTS", "registry_entries"]
 
@@ -257,10 +258,10 @@ class Ward(AbstractBRDF):
         wi = jnp.where(diffuse[..., None], wd, ws)
         valid = okv & (diffuse | (good & (d[..., 0] > 0)))
         pdf = jnp.where(valid, self.pdf(wi, wo), 0.0)
-        return BRDFSample(wi=wi, pdf=pdf, weight=_sample_weight(self, wi, wo, pdf))
+        return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(self, wi, wo, pdf))
 
     def quadrature_lobe(self):
-        """Quadrature hint (:func:`brdf_fit.quadrature.lobe_rule`): a half-vector lobe of the
+        """Quadrature hint (:func:`brdf_fit.verify.albedo.lobe_rule`): a half-vector lobe of the
         Beckmann widths ``(alpha_x, alpha_y)`` (Ward's Gaussian is Beckmann's, same widths)."""
         return "half", self._alphas()
 
@@ -284,8 +285,6 @@ _DUER_FAILURES: dict[str, str] = {
 
 def registry_entries():
     """:class:`brdf_fit.registry.Entry` objects for the Ward family (not registered here)."""
-    from ..registry import Entry, Param
-
     def params():
         return (
             Param("rho_d", (0.4, 0.3, 0.2), lo=0.0, hi=1.0, channels=True,

@@ -1,0 +1,187 @@
+"""Fresnel reflectance: Schlick's approximation and the exact dielectric and conductor formulas.
+
+All functions take the cosine of the angle of incidence *on the (micro)facet* (``wo.h`` for a
+microfacet model, ``n.w`` for a smooth interface) and broadcast it against their parameters, which
+may carry a trailing channel axis (RGB or wavelengths). Values and gradients stay finite at
+cos = 0 and 1, k = 0, eta = 1 and at the critical angle (see ``tests/test_fresnel.py``).
+
+References
+----------
+- C. Schlick, "An inexpensive BRDF model for physically-based rendering", Computer Graphics
+  Forum 13(3), 1994, eq. 24 (``F0 + (1 - F0)(1 - cos)^5``).
+- M. Born, E. Wolf, "Principles of Optics", 7th ed., section 1.5.2 (Fresnel equations, s and p
+  amplitudes); the unpolarised reflectance is the mean of ``|r_s|^2`` and ``|r_p|^2``.
+- K. D. Moeller, "Optics", University Science Books, 1988: the real-arithmetic form of the
+  conductor reflectance used by pbrt-v3 ``FrConductor`` and Mitsuba 3 ``fresnel_conductor``.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+
+from brdf_fit.core.numerics import pow5, safe_div, safe_hypot, safe_sqrt
+
+__all__ = [
+    "schlick",
+    "dielectric",
+    "conductor",
+    "f0_from_ior",
+    "ior_from_f0",
+    "SchlickFresnel",
+    "DielectricFresnel",
+    "ConductorFresnel",
+    "ConstantFresnel",
+]
+
+
+def schlick(cos, f0, f90=1.0):
+    """Schlick (1994, eq. 24) approximation ``F0 + (F90 - F0)(1 - cos)^5``.
+
+    ``cos`` is clamped to [0, 1]. ``f90 = 1`` is the physical value; other values are the
+    artistic extension of Burley (2012). Exact at cos = 1 and (for f90 = 1) at cos = 0.
+    """
+    c = jnp.clip(cos, 0.0, 1.0)
+    return f0 + (f90 - f0) * pow5(1.0 - c)
+
+
+def dielectric(cos_i, eta):
+    """Exact unpolarised Fresnel reflectance of a smooth dielectric interface.
+
+    ``eta = eta_t / eta_i`` is the relative index of the medium *below* the surface (the side the
+    normal points away from). ``cos_i < 0`` means the light arrives from inside; then the interface
+    is seen with relative index ``1/eta`` and total internal reflection gives exactly 1.
+
+    Formula: Born & Wolf section 1.5.2 with Snell's law ``sin_t = sin_i / eta``::
+
+        r_par  = (eta c - cos_t)/(eta c + cos_t),   r_perp = (c - eta cos_t)/(c + eta cos_t)
+        F      = (r_par^2 + r_perp^2)/2,            F = 1 when sin_t^2 >= 1 (TIR)
+    """
+    c = jnp.clip(cos_i, -1.0, 1.0)
+    inside = c < 0
+    eta = jnp.where(inside, 1.0 / eta, eta)
+    c = jnp.abs(c)
+    # cos_t^2 = 1 - (1 - c^2)/eta^2 written as ((eta - 1)(eta + 1) + c^2)/eta^2: no cancellation
+    # of 1 - c^2 in float32 at grazing (where 1 - c^2 rounds to 1 for c < 3e-4)
+    cos2_t = ((eta - 1.0) * (eta + 1.0) + c * c) / (eta * eta)
+    tir = cos2_t <= 0.0
+    cos_t = safe_sqrt(cos2_t)  # gradient-safe at the critical angle
+    r_par = safe_div(eta * c - cos_t, eta * c + cos_t)
+    r_perp = safe_div(c - eta * cos_t, c + eta * cos_t)
+    F = 0.5 * (r_par * r_par + r_perp * r_perp)
+    # cos_t = c = 0 (grazing at eta = 1) is the limit F -> 1, like TIR.
+    degenerate = (eta * c + cos_t) <= 0
+    return jnp.where(tir | degenerate, 1.0, F)
+
+
+def conductor(cos_i, eta, k):
+    """Exact unpolarised Fresnel reflectance of a conductor with complex index ``eta + i k``.
+
+    Light arrives from outside (``cos_i`` is clamped to [0, 1]). The real-arithmetic form of
+    Moeller (1988) is used (no complex dtype, differentiable in eta and k)::
+
+        s2 = 1 - c^2,  t0 = eta^2 - k^2 - s2,  a2b2 = sqrt(t0^2 + 4 eta^2 k^2),  a^2 = (a2b2 + t0)/2
+        Rs = (a2b2 + c^2 - 2 a c)/(a2b2 + c^2 + 2 a c)
+        Rp = Rs (a2b2 c^2 + s2^2 - 2 a c s2)/(a2b2 c^2 + s2^2 + 2 a c s2),   F = (Rs + Rp)/2
+
+    For large k, ``t0`` is large and negative and ``a2b2 + t0`` cancels catastrophically; there we
+    use the algebraically equal ``a^2 = 2 eta^2 k^2/(a2b2 - t0)`` (robust to k = 100 and beyond in
+    float32). With ``k = 0`` this equals :func:`dielectric` for light from outside.
+    """
+    c = jnp.clip(cos_i, 0.0, 1.0)
+    c2 = c * c
+    s2 = 1.0 - c2
+    em1 = (eta - 1.0) * (eta + 1.0)  # eta^2 - 1, exact near eta = 1
+    kk = k * k
+    t0 = em1 + c2 - kk  # = eta^2 - k^2 - s2 without cancelling 1 - c^2 (float32 at grazing)
+    a2b2 = safe_hypot(t0, 2.0 * eta * k)  # sqrt(t0^2 + 4 eta^2 k^2), gradient bounded by 1
+    pos = t0 >= 0
+    t0p = jnp.where(pos, t0, 0.0)
+    t0n = jnp.where(pos, 0.0, t0)
+    # a^2 = (a2b2 + t0)/2; for t0 < 0 the equal 2 eta^2 k^2/(a2b2 - t0) avoids cancellation
+    a2 = jnp.where(pos, 0.5 * (a2b2 + t0p), safe_div(2.0 * eta * eta * kk, a2b2 - t0n))
+    a = safe_sqrt(a2)
+    b2 = jnp.maximum(a2b2 - a2, 0.0)
+    # a - c = (a^2 - c^2)/(a + c), with a^2 - c^2 = (a2b2 - t0)/2 + eta^2 - 1 - k^2 for t0 >= 0:
+    # both exact where the reflectance vanishes (eta = 1, k = 0), so F keeps its zero and its
+    # zero derivative there without huge intermediate terms (which overflow float32 gradients
+    # at cos = 1e-7, where F ~ (eta - 1)^2/(4 cos^4))
+    a2mc2 = jnp.where(pos, 0.5 * (a2b2 - t0p) + em1 - kk, a2 - c2)
+    amc = safe_div(a2mc2, a + c)
+    # numerators as sums of squares, (a - c)^2 + b^2 = a2b2 + c^2 - 2ac and
+    # (ac - s2)^2 + b^2 c^2 = a2b2 c^2 + s2^2 - 2ac s2: never negative
+    den_s = (a + c) ** 2 + b2
+    Rs = safe_div(amc * amc + b2, den_s)
+    Rp = Rs * safe_div((a * c - s2) ** 2 + b2 * c2, (a * c + s2) ** 2 + b2 * c2)
+    F = 0.5 * (Rs + Rp)
+    # den_s = 0 only for eta = 1, k = 0 at exact grazing: the limit there is 1.
+    return jnp.where(den_s > 0, F, 1.0)
+
+
+def f0_from_ior(eta, k=0.0):
+    """Normal-incidence reflectance ``((eta - 1)^2 + k^2)/((eta + 1)^2 + k^2)`` (exact F at
+    cos = 1)."""
+    return ((eta - 1.0) ** 2 + k * k) / ((eta + 1.0) ** 2 + k * k)
+
+
+def ior_from_f0(f0):
+    """Dielectric index with normal-incidence reflectance ``f0`` (inverse of :func:`f0_from_ior`
+    with k = 0, the branch eta >= 1): ``(1 + sqrt(f0))/(1 - sqrt(f0))``, as Cook & Torrance 1982."""
+    s = jnp.sqrt(f0)
+    return (1.0 + s) / (1.0 - s)
+
+
+class SchlickFresnel(eqx.Module):
+    """Schlick's approximation as a microfacet-model component. ``f0`` may be RGB."""
+
+    f0: object = 0.04
+    f90: object = 1.0
+
+    def __call__(self, cos):
+        return schlick(cos, self.f0, self.f90)
+
+    def reflectance_hint(self):
+        """Largest normal-incidence reflectance over channels (used to pick lobes in mixtures)."""
+        return jnp.max(jnp.asarray(self.f0))
+
+
+class DielectricFresnel(eqx.Module):
+    """Exact dielectric Fresnel (:func:`dielectric`) with relative index ``eta``."""
+
+    eta: object = 1.5
+
+    def __call__(self, cos):
+        return dielectric(cos, self.eta)
+
+    def reflectance_hint(self):
+        return jnp.max(f0_from_ior(jnp.asarray(self.eta)))
+
+
+class ConductorFresnel(eqx.Module):
+    """Exact conductor Fresnel (:func:`conductor`) with complex index ``eta + i k``.
+
+    ``eta`` and ``k`` may be RGB triples (effective values, see :mod:`brdf_fit.spectra`) or
+    spectral vectors (channels = wavelengths). A tabulated metal:
+    :func:`brdf_fit.core.spectra.conductor_fresnel` (``conductor_fresnel("Cu")``).
+    """
+
+    eta: object = 0.2
+    k: object = 3.0
+
+    def __call__(self, cos):
+        return conductor(cos, self.eta, self.k)
+
+    def reflectance_hint(self):
+        return jnp.max(f0_from_ior(jnp.asarray(self.eta), jnp.asarray(self.k)))
+
+
+class ConstantFresnel(eqx.Module):
+    """F = ``value`` for every angle (``value = 1`` for white-furnace tests)."""
+
+    value: object = 1.0
+
+    def __call__(self, cos):
+        return jnp.asarray(self.value) + 0.0 * cos
+
+    def reflectance_hint(self):
+        return jnp.max(jnp.asarray(self.value))

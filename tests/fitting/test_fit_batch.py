@@ -1,0 +1,391 @@
+"""Batch fitting: fit_batch equals fit() problem by problem, stragglers are re-solved without
+touching the easy problems, per-problem flags, and the sharded path on 2 host devices."""
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from brdf_fit import registry
+from brdf_fit.data import GonioData
+from brdf_fit.fitting.batch import fit_batch
+from brdf_fit.fitting.single import FitError, fit
+
+TRUTHS = [(0.23, [0.9, 0.6, 0.3]), (0.08, [0.6, 0.5, 0.4]), (0.5, [0.95, 0.9, 0.2]),
+          (0.14, [0.3, 0.3, 0.3])]
+
+
+def directions(rng, n):
+    mu = rng.uniform(0.05, 1.0, n)
+    phi = rng.uniform(0, 2 * np.pi, n)
+    s = np.sqrt(1 - mu * mu)
+    return np.stack([s * np.cos(phi), s * np.sin(phi), mu], -1)
+
+
+def batch(truths, n=120, seed=0, noise=0.0):
+    rng = np.random.default_rng(seed)
+    wi, wo, v = [], [], []
+    for a, f0 in truths:
+        x, y = directions(rng, n), directions(rng, n)
+        m = registry.get("ggx").build(alpha=a, f0=f0)
+        val = np.asarray(m.eval(jnp.asarray(x), jnp.asarray(y)))
+        if noise:
+            val = val * np.exp(noise * rng.standard_normal(val.shape))
+        wi.append(x)
+        wo.append(y)
+        v.append(val)
+    return np.stack(wi), np.stack(wo), np.stack(v)
+
+
+def single(wi, wo, v, b, **kw):
+    return fit(GonioData(wi=wi[b], wo=wo[b], value=v[b], channels=("R", "G", "B")), "ggx", **kw)
+
+
+@pytest.mark.parametrize(
+    "noise", [0.0, pytest.param(0.02, marks=pytest.mark.slow)], ids=["noise-free", "noisy"])
+def test_batch_equals_single_fits(noise):
+    wi, wo, v = batch(TRUTHS, noise=noise, seed=1)
+    r = fit_batch(wi, wo, v, "ggx", chunk_steps=8)  # small chunks: compaction is exercised
+    assert r.converged.all() and r.params["f0"].shape == (4, 3)
+    assert len([x for x in r.rounds if not (x.get("finalise") or x.get("init"))]) > 1
+    for b in range(len(TRUTHS)):
+        s = single(wi, wo, v, b)
+        assert s.converged
+        np.testing.assert_allclose(r.params["alpha"][b], s.params["alpha"], rtol=0, atol=1e-8)
+        np.testing.assert_allclose(r.params["f0"][b], s.params["f0"], rtol=0, atol=1e-8)
+        assert r.n_samples[b] == s.n_samples
+        if noise == 0.0:
+            # exact data: both fits reproduce it; what remains of loss, rms and standard error
+            # says where each solver stopped inside its tolerance (batch-lm: alpha to 7e-11
+            # relative, loss 1.5e-21; fit(): 1e-15, 3e-28 - measured), so only their
+            # vanishing is compared, not their values
+            np.testing.assert_allclose(r.params["alpha"][b], TRUTHS[b][0], rtol=1e-7)
+            for x in (r, s):
+                assert np.max(np.asarray(x.loss)) < 1e-18
+                assert np.all(np.asarray(x.stderr["alpha"]) < 1e-9 * TRUTHS[b][0])
+                assert np.all(np.asarray(x.stderr["f0"]) < 1e-9)
+            continue
+        np.testing.assert_allclose(r.stderr["alpha"][b], s.stderr["alpha"], rtol=1e-6, atol=1e-12)
+        np.testing.assert_allclose(r.stderr["f0"][b], s.stderr["f0"], rtol=1e-6, atol=1e-12)
+        np.testing.assert_allclose(r.loss[b], s.loss, rtol=1e-9, atol=1e-20)
+        np.testing.assert_allclose(r.residual_rms[b], s.residual_rms, rtol=1e-7, atol=1e-14)
+
+
+@pytest.mark.slow  # the optimistix path is fit()'s solve, tested in test_fit.py
+def test_optimistix_solver_in_chunks_matches_fit():
+    """solver="lm": fit()'s optimistix solver, restarted at chunk boundaries."""
+    wi, wo, v = batch(TRUTHS[:2], noise=0.01, seed=2)
+    r = fit_batch(wi, wo, v, "ggx", solver="lm", chunk_steps=16)
+    assert r.converged.all()
+    for b in range(2):
+        s = single(wi, wo, v, b)
+        np.testing.assert_allclose(r.params["f0"][b], s.params["f0"], rtol=0, atol=1e-8)
+
+
+def test_straggler_is_resolved_and_easy_problems_unchanged():
+    """One problem started far off (alpha at 0.999, f0 at 0.001) among easy ones started at
+    their truth: it needs more chunks; the easy ones stop in the first chunk with the same
+    result and step count as when solved without the straggler."""
+    truths = TRUTHS * 2
+    wi, wo, v = batch(truths, noise=0.01, seed=3)
+    init_a = np.array([t[0] for t in truths])
+    init_f = np.array([t[1] for t in truths])
+    kw = dict(rtol=1e-6, atol=1e-6, chunk_steps=4)
+    easy = fit_batch(wi[1:], wo[1:], v[1:], "ggx", init={"alpha": init_a[1:], "f0": init_f[1:]},
+                     **kw)
+    init_a[0], init_f[0] = 0.999, [0.001, 0.001, 0.001]
+    r = fit_batch(wi, wo, v, "ggx", init={"alpha": init_a, "f0": init_f}, **kw)
+    assert r.converged.all()
+    assert r.steps[0] > 8 and r.steps[1:].max() <= 4
+    chunks = [x for x in r.rounds if not (x.get("finalise") or x.get("init"))]
+    assert chunks[0]["active"] == 8 and chunks[1]["active"] == 1  # only the straggler goes on
+    np.testing.assert_array_equal(r.steps[1:], easy.steps)
+    np.testing.assert_allclose(r.params["f0"][1:], easy.params["f0"], rtol=0, atol=1e-12)
+    s = single(wi, wo, v, 0)  # the straggler reaches the same optimum as fit() from defaults
+    np.testing.assert_allclose(r.params["alpha"][0], s.params["alpha"], rtol=0, atol=1e-6)
+    # the same answer as a single unchunked vmapped solve, at the same per-problem step counts
+    plain = fit_batch(wi, wo, v, "ggx", init={"alpha": init_a, "f0": init_f}, rtol=1e-6,
+                      atol=1e-6, chunk_steps=None, group=None)
+    np.testing.assert_array_equal(plain.steps, r.steps)
+    np.testing.assert_allclose(plain.params["f0"], r.params["f0"], rtol=0, atol=1e-12)
+
+
+def test_per_problem_converged_flags():
+    wi, wo, v = batch(TRUTHS[:3], noise=0.01, seed=4)
+    f0 = np.array([[0.9, 0.6, 0.3], [1e-3] * 3, [0.95, 0.9, 0.2]])
+    init = {"alpha": np.array([0.23, 0.999, 0.5]), "f0": f0}
+    # without a budget these need 3, 13 and 3 steps: a budget of 8 stops only the second
+    r = fit_batch(wi, wo, v, "ggx", init=init, max_steps=8, chunk_steps=4, rtol=1e-6, atol=1e-6)
+    assert r.converged.tolist() == [True, False, True]
+    assert r.steps[1] == 8 and r.steps[0] < 8
+    assert r.to_dict()["converged"] == [True, False, True]
+
+
+def test_fixed_parameters_and_errors():
+    wi, wo, v = batch(TRUTHS[:2], seed=5)
+    f0 = np.array([t[1] for t in TRUTHS[:2]])
+    r = fit_batch(wi, wo, v, "ggx", fix={"f0": f0})
+    np.testing.assert_array_equal(r.params["f0"], f0)
+    assert set(r.stderr) == {"alpha"} and r.n_params == 1
+    np.testing.assert_allclose(r.params["alpha"], [0.23, 0.08], rtol=1e-8)
+    with pytest.raises(FitError, match="unknown metric"):
+        fit_batch(wi, wo, v, "ggx", metric="l2")
+    with pytest.raises(FitError, match="unknown solver"):
+        fit_batch(wi, wo, v, "ggx", solver="bfgs")
+    with pytest.raises(FitError, match="expected wi, wo"):
+        fit_batch(wi[0], wo[0], v[0], "ggx")
+    with pytest.raises(FitError, match="3 rows for 2 problems"):
+        fit_batch(wi, wo, v, "ggx", init={"alpha": [0.1, 0.2, 0.3]})
+
+
+SHARDED = textwrap.dedent("""
+    import json, sys
+    import jax
+    jax.config.update("jax_enable_x64", True)
+    import numpy as np
+    from brdf_fit.fitting.batch import fit_batch
+    d = np.load(sys.argv[1])
+    out = {}
+    for shard in (True, False):
+        r = fit_batch(d["wi"], d["wo"], d["v"], "ggx", chunk_steps=8, shard=shard)
+        out[str(shard)] = {"alpha": r.params["alpha"].tolist(), "f0": r.params["f0"].tolist(),
+                           "converged": r.converged.tolist(), "n_devices": r.n_devices}
+    out["devices"] = len(jax.devices())
+    print(json.dumps(out))
+""")
+
+
+def test_sharded_on_two_host_devices(tmp_path):
+    """A fresh process (XLA_FLAGS must be set before jax is imported) with 2 host devices: the
+    batch (5 problems, padded to 6) is laid over both and matches the unsharded results."""
+    truths = TRUTHS + [(0.3, [0.5, 0.5, 0.5])]
+    wi, wo, v = batch(truths, noise=0.01, seed=6)
+    np.savez(tmp_path / "d.npz", wi=wi, wo=wo, v=v)
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2",
+               JAX_PLATFORMS="cpu")
+    root = Path(__file__).resolve().parents[2]
+    p = subprocess.run([sys.executable, "-c", SHARDED, str(tmp_path / "d.npz")], env=env,
+                       capture_output=True, text=True, cwd=root, timeout=300)
+    assert p.returncode == 0, p.stderr[-3000:]
+    out = json.loads(p.stdout.strip().splitlines()[-1])
+    assert out["devices"] == 2
+    sh, un = out["True"], out["False"]
+    assert sh["n_devices"] == 2 and un["n_devices"] == 1
+    assert all(sh["converged"]) and all(un["converged"])
+    np.testing.assert_allclose(sh["alpha"], un["alpha"], rtol=0, atol=1e-8)
+    np.testing.assert_allclose(sh["f0"], un["f0"], rtol=0, atol=1e-8)
+    r = fit_batch(wi, wo, v, "ggx", chunk_steps=8)  # and this process (1 device) agrees
+    np.testing.assert_allclose(sh["f0"], r.params["f0"], rtol=0, atol=1e-8)
+
+
+def test_grid_guess_starts_no_worse_and_reaches_the_same_optimum():
+    """guess="grid" (default) vs guess="none" (registry defaults): the same optimum; the grid's
+    start has a loss no higher than the defaults' (the defaults are one of its candidates)."""
+    from brdf_fit.fitting import guess as G
+
+    truths = [(0.05, [0.9, 0.9, 0.9]), (0.7, [0.1, 0.1, 0.1]), (0.3, [0.5, 0.4, 0.3])]
+    wi, wo, v = batch(truths, noise=0.01, seed=7)
+    grid = fit_batch(wi, wo, v, "ggx")
+    none = fit_batch(wi, wo, v, "ggx", guess="none")
+    assert grid.converged.all() and none.converged.all()
+    np.testing.assert_allclose(grid.params["alpha"], none.params["alpha"], rtol=1e-6)
+    np.testing.assert_allclose(grid.params["f0"], none.params["f0"], rtol=0, atol=1e-6)
+    assert [r for r in grid.rounds if r.get("guess")][0]["candidates"] == G.GUESS_CANDIDATES
+    assert not [r for r in none.rounds if r.get("guess")]
+    start_grid = fit_batch(wi, wo, v, "ggx", max_steps=0)  # no iterations: the start itself
+    start_none = fit_batch(wi, wo, v, "ggx", max_steps=0, guess="none")
+    np.testing.assert_allclose(start_none.params["alpha"], 0.3)
+    sub = G.subsample(wi.shape[1])
+    for b in range(3):  # compare on the subsample the guess was chosen on
+        ls = [fit_batch(wi[b:b + 1, sub], wo[b:b + 1, sub], v[b:b + 1, sub], "ggx",
+                        init={k: s.params[k][b:b + 1] for k in ("alpha", "f0")},
+                        max_steps=0).loss[0] for s in (start_grid, start_none)]
+        assert ls[0] <= ls[1] * (1 + 1e-12)
+    with pytest.raises(FitError, match="unknown guess"):
+        fit_batch(wi, wo, v, "ggx", guess="moments")
+
+
+def test_at_bound_flags_and_progress():
+    """An f0 channel whose data need reflectance > 1 ends at the bound and is flagged; the
+    progress callback sees the start, every chunk, and all problems finished at the end."""
+    wi, wo, v = batch([(0.2, [0.5, 0.5, 0.5]), (0.2, [0.5, 0.5, 0.5])], seed=8)
+    v[1, :, 0] *= 4.0  # red needs F > 1 at every angle: f0_r runs to 1
+    calls = []
+    r = fit_batch(wi, wo, v, "ggx", progress=lambda d, t, s: calls.append((d, t, s)))
+    assert r.at_bound["alpha"].tolist() == [False, False]
+    assert r.at_bound["f0"].tolist() == [[False] * 3, [True, False, False]]
+    assert r.to_dict()["at_bound"]["f0"][1] == [True, False, False]
+    assert calls[0] == (0, 2, "start") and calls[-1][:2] == (2, 2)
+    assert [c[2] for c in calls[1:]] == [f"chunk {k}" for k in range(1, len(calls))]
+    data = GonioData(wi=wi[1], wo=wo[1], value=v[1], channels=("R", "G", "B"))
+    assert fit(data, "ggx").at_bound == ("f0",)
+
+
+# --------------------------------------------------------------------------- structured Jacobian
+
+
+def _problem_at(entry, rng, metric="log", cos_weight=False):
+    from brdf_fit.fitting.single import _Problem, _transform
+    d = {n: (np.broadcast_to(v, (3,)) if entry.param(n).channels and v.size in (1, 3) else v)
+         for n, v in entry.defaults().items()}  # channel parameters (C,), as fit_batch has them
+    free = entry.param_names
+    shapes = tuple(np.shape(d[n]) for n in free)
+    trs = tuple(_transform(entry.param(n)) for n in free)
+    prob = _Problem(entry, free, shapes, trs, {}, metric, cos_weight)
+    u = np.concatenate([np.ravel(t.inverse(d[n])) for n, t in zip(free, trs, strict=True)])
+    return prob, u + 0.3 * rng.standard_normal(u.shape)
+
+
+def _check_structured(entry, prob, u, n=24, seed=0):
+    """Residuals and Jacobian of fit_batch's structured path against jacfwd of fit()'s
+    residual; returns the largest relative Jacobian error."""
+    import jax
+
+    from brdf_fit.fitting.batch import _tangents
+    from brdf_fit.fitting.batch import directions as tangent_directions
+    from brdf_fit.fitting.single import RELATIVE_FLOOR
+    rng = np.random.default_rng(seed)
+    wi, wo = directions(rng, n), directions(rng, n)
+    f = np.abs(np.asarray(entry.build(**prob.unflatten(jnp.asarray(u))).eval(
+        jnp.asarray(wi), jnp.asarray(wo))))
+    f = np.broadcast_to(f.reshape(n, -1), (n, 3)) * np.exp(0.1 * rng.standard_normal((n, 3)))
+    raw = (wi, wo, f, np.ones_like(f), None, RELATIVE_FLOOR * f.max())
+    dirs, Q = tangent_directions(prob, 3)
+    r, T = _tangents(prob, dirs, jnp.asarray(u), prob.prepare(raw), {})
+    J_ref = np.asarray(jax.jacfwd(lambda x: prob.residuals(x, raw))(jnp.asarray(u)))
+    np.testing.assert_allclose(np.asarray(r).reshape(-1), prob.residuals(jnp.asarray(u), raw),
+                               rtol=1e-12, atol=1e-13)
+    # the full Jacobian (M C, p) of the flattened residual: tangent a of residual (m, c)
+    # is column Q[c, a]
+    J = np.einsum("amc,cap->mcp", np.asarray(T), Q).reshape(-1, Q.shape[-1])
+    return float(np.max(np.abs(J - J_ref)) / max(np.max(np.abs(J_ref)), 1e-300)), len(dirs)
+
+
+#: a cheap cross-section of the families (channel parameters, complex-index Fresnel, several
+#: lobes, anisotropy, shared vector parameters); every entry runs with -m slow
+STRUCTURED_FAST = ("lambert", "ggx", "ggx-conductor", "ggx-aniso", "beckmann", "modified-phong",
+                   "ward", "lafortune", "oren-nayar", "ashikhmin-shirley", "lewis", "neumann")
+
+
+@pytest.mark.parametrize("name", [
+    n if n in STRUCTURED_FAST else pytest.param(n, marks=pytest.mark.slow)
+    for n in registry.names()])
+def test_structured_jacobian_matches_jacfwd(name):
+    """fit_batch's 'one tangent per channel parameter' Jacobian rests on every channel's
+    residual depending only on its own entry of a channel parameter: checked per model against
+    jacfwd of the flattened fit() residual (and the prepared residual against fit()'s)."""
+    entry = registry.get(name)
+    prob, u = _problem_at(entry, np.random.default_rng(3))
+    err, _ = _check_structured(entry, prob, u)
+    assert err < 1e-12, err
+
+
+def test_structured_jacobian_detects_channel_mixing():
+    """The check above has teeth: a model whose red channel leaks into the others breaks the
+    block-diagonal assumption and fails it."""
+    from brdf_fit.registry import Entry
+    ggx = registry.get("ggx")
+
+    class Mixing:
+        def __init__(self, inner):
+            self.inner = inner
+
+        def eval(self, wi, wo):
+            m = self.inner.eval(wi, wo)
+            return m + 0.2 * m[..., :1]
+
+    entry = Entry(name="mixing", builder=lambda **p: Mixing(ggx.builder(**p)),
+                  params=ggx.params, reference="test", description="test")
+    prob, u = _problem_at(entry, np.random.default_rng(3))
+    err, _ = _check_structured(entry, prob, u)
+    assert err > 1e-3
+
+
+def _metric_reference(name, m, f, c, sigma, w, floor, cos_weight):
+    """The residual metrics written out from their definitions (fit.py's module docstring),
+    independently of brdf_fit.fitting.single._metric_parts."""
+    if name == "log":
+        g, dg = np.log1p(m * c) - np.log1p(f * c), c / (1.0 + f * c)
+    elif name == "cuberoot":
+        g, dg = np.cbrt(m) - np.cbrt(f), 1.0 / (3.0 * np.cbrt(np.maximum(f, floor)) ** 2)
+    elif name == "relative":
+        den = np.maximum(f, floor)
+        g, dg = (m - f) / den, 1.0 / den
+    else:
+        g, dg = m - f, np.ones_like(f)
+    r = np.where(w > 0, g / (dg * sigma), 0.0) if sigma is not None else g * np.sqrt(w)
+    return r * c if cos_weight else r
+
+
+@pytest.mark.parametrize("metric", ["log", "cuberoot", "relative", "absolute"])
+@pytest.mark.parametrize("sigma", ["none", "weights", "sigma"])
+@pytest.mark.parametrize("cos_weight", [False, True], ids=["", "cos"])
+def test_prepared_residuals_equal_fit_residuals(metric, sigma, cos_weight):
+    """The residual with the data side of the metric computed once (_Problem.prepare, NumPy
+    for the test, jax.numpy in fit() and fit_batch) equals the metric written out from its
+    definition, for every metric, without weights, with weights (some zero) or sigma, and
+    with cosine weighting; fit()'s flat residual is the same."""
+    from brdf_fit.fitting.single import RELATIVE_FLOOR
+    rng = np.random.default_rng(5)
+    entry = registry.get("ggx")
+    prob, u = _problem_at(entry, rng, metric=metric, cos_weight=cos_weight)
+    n = 30
+    wi, wo = directions(rng, n), directions(rng, n)
+    f = np.asarray(entry.build(alpha=0.2, f0=[0.9, 0.5, 0.1]).eval(jnp.asarray(wi),
+                                                                   jnp.asarray(wo)))
+    f = f * np.exp(0.05 * rng.standard_normal(f.shape))
+    w = rng.uniform(0.5, 2.0, f.shape) * (rng.uniform(size=f.shape) > 0.2)
+    sg = 0.01 * f + 1e-3 if sigma == "sigma" else None
+    raw = (wi, wo, f, w, sg, RELATIVE_FLOOR * f.max())
+    if sigma == "none":  # fit()'s residual with unit weights; the prepared one without any
+        raw = (wi, wo, f, np.ones_like(f), None, RELATIVE_FLOOR * f.max())
+        prep = prob.prepare((*raw[:3], None, *raw[4:]))
+        assert (prep[4] is None) == (not cos_weight)
+    else:
+        prep = prob.prepare(raw)
+    params = prob.unflatten(jnp.asarray(u))
+    got = np.asarray(prob.residuals_prepared(params, prep))
+    m = np.asarray(entry.build(**params).eval(jnp.asarray(wi), jnp.asarray(wo)))
+    want = _metric_reference(metric, m, f, wi[:, 2:3], raw[4], raw[3], raw[5], cos_weight)
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(np.asarray(prob.residuals(jnp.asarray(u), raw)), got.reshape(-1),
+                               rtol=1e-12, atol=1e-14)
+
+
+def _has_product_design(entry):
+    kinds = {p.channels for p in entry.params}
+    return kinds == {True, False}
+
+
+@pytest.mark.parametrize("name", [
+    n if n in STRUCTURED_FAST else pytest.param(n, marks=pytest.mark.slow)
+    for n in registry.names() if _has_product_design(registry.get(n))])
+def test_guess_pseudo_channels_equal_candidate_by_candidate(name):
+    """The grid guess evaluates all channel levels of a shared point at once, as extra
+    (pseudo-)channels; the per-channel losses equal evaluating every candidate on its own."""
+    from brdf_fit.fitting import guess as G
+    from brdf_fit.fitting.batch import _candidate_losses
+    from brdf_fit.fitting.single import RELATIVE_FLOOR
+    entry = registry.get(name)
+    rng = np.random.default_rng(7)
+    prob, u = _problem_at(entry, rng)
+    lay = G.layout(prob, prob.free)
+    assert lay is not None
+    chan_of = G.channel_index(prob, 3)
+    cands = G.design(prob, u, prob.free, entry.defaults())
+    n = 16
+    wi, wo = directions(rng, n), directions(rng, n)
+    f = np.abs(np.asarray(entry.build(**prob.unflatten(jnp.asarray(u))).eval(
+        jnp.asarray(wi), jnp.asarray(wo))))
+    f = np.broadcast_to(f.reshape(n, -1), (n, 3)) * np.exp(0.1 * rng.standard_normal((n, 3)))
+    prep = tuple(jnp.asarray(a) for a in prob.prepare(
+        (wi, wo, f, np.ones_like(f), None, RELATIVE_FLOOR * f.max())))
+    got = np.asarray(_candidate_losses(prob, jnp.asarray(cands), prep, {}, lay, chan_of))
+    want = np.asarray(_candidate_losses(prob, jnp.asarray(cands), prep, {}, None, chan_of))
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-300)
