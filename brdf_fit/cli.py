@@ -513,150 +513,9 @@ def cmd_fit_batch(args) -> int:
 
 # ----------------------------------------------------------------------------- demo
 
-#: The demo's dataset: gold (GGX, exact conductor Fresnel, the registry's gold eta/k) at
-#: alpha = 0.2, scanned by a four-axis gonioreflectometer with 1% lognormal noise.
-DEMO_RECIPE = {
-    "name": "demo-gold-ggx",
-    "description": "rough gold (GGX, alpha 0.2) on a four-axis gonioreflectometer, 1% noise",
-    "model": "ggx-conductor",
-    "params": {"alpha": 0.2},
-    "seed": 2024,
-    "plan": {"name": "four_axis",
-             "args": {"theta_i_deg": [0.0, 15.0, 30.0, 45.0, 60.0, 75.0],
-                      "theta_o_deg": [0.0, 10.0, 20.0, 30.0, 40.0, 50.0, 60.0, 70.0, 80.0],
-                      "phi_o_deg": [float(p) for p in range(0, 360, 30)],
-                      "max_zenith_deg": 80.0, "min_separation_deg": 5.0}},
-    "noise": [{"type": "lognormal", "args": {"sigma": 0.01}}],
-}
-#: The models the demo fits, with their start values. ggx-conductor starts from a neutral metal:
-#: the registry's gold default has its red channel at the parameter bounds (eta = 0.001,
-#: k = 100), where F ~ 1 and the gradients with respect to eta and k vanish.
-DEMO_FITS = (
-    ("ggx-conductor", {"alpha": 0.4, "eta": [1.0, 1.0, 1.0], "k": [3.0, 3.0, 3.0]}),
-    ("ggx", {}),
-    ("beckmann", {}),
-    ("modified-phong", {}),
-    ("blinn-phong-approx", {}),
-)
-DEMO_METRIC = "log"
-DEMO_CHECKS = ("non-negative", "reciprocity", "energy")
-DEMO_SLICES_DEG = (0.0, 30.0, 60.0)
-
-
-def _demo_conversions(results: dict) -> list[dict]:
-    """Closed-form Phong / Blinn-Phong exponent -> GGX alpha (peak match) of the fitted lobes."""
-    from brdf_fit.convert import phong as cp
-
-    out = []
-    if "modified-phong" in results:
-        n = float(np.asarray(results["modified-phong"].params["exponent"]))
-        nb = float(cp.phong_to_blinn_phong_exponent(n))
-        out.append({"model": "modified-phong", "exponent": n, "kind": "phong",
-                    "blinn_phong_exponent": nb,
-                    "ggx_alpha": float(cp.blinn_phong_to_ggx_alpha(nb)),
-                    "via": "phong_to_blinn_phong_exponent, blinn_phong_to_ggx_alpha"})
-    if "blinn-phong-approx" in results:
-        n = float(np.asarray(results["blinn-phong-approx"].params["exponent"]))
-        out.append({"model": "blinn-phong-approx", "exponent": n, "kind": "blinn-phong",
-                    "blinn_phong_exponent": n,
-                    "ggx_alpha": float(cp.blinn_phong_to_ggx_alpha(n)),
-                    "via": "blinn_phong_to_ggx_alpha"})
-    return out
-
 
 def _short_params(params: dict) -> str:
     return ", ".join(f"{k}={_fmt(v)}" for k, v in params.items())
-
-
-def _demo_plots(data, ranked, out_dir) -> tuple[list[str], str | None]:
-    try:
-        import matplotlib  # noqa: F401
-    except ImportError:
-        return [], "matplotlib is not installed: plots skipped (pip install matplotlib)"
-    from brdf_fit import plot
-
-    models = [(r.model_name, r.model) for r in ranked]
-    files = []
-    truth = ", ".join(f"{k}={v}" for k, v in DEMO_RECIPE["params"].items())
-    figs = {
-        "demo_slices.png": plot.in_plane_slices(
-            data, models, DEMO_SLICES_DEG,
-            title=f"{DEMO_RECIPE['model']} ({truth}), 1% noise: measured vs fitted, in plane"),
-        "demo_residuals.png": plot.residuals(
-            data, models, title=f"log residuals per model (metric {DEMO_METRIC}); dashed: "
-                                "+-1 median sigma"),
-    }
-    for name, fig in figs.items():
-        path = out_dir / name
-        fig.savefig(path, dpi=110)
-        files.append(str(path))
-    return files, None
-
-
-def run_demo(out_dir, plots: bool = True, progress: bool = True) -> dict:
-    """The main job: synthesise, fit every model of :data:`DEMO_FITS`, rank, convert, check, write
-    ``demo.json`` (and plots) into ``out_dir``. Returns the JSON document."""
-    import pathlib
-    import time
-
-    _x64()
-    from brdf_fit.fitting.single import fit
-    from brdf_fit.verify.checks import run_checks
-    from data_synth.recipes import synthesize
-
-    t0 = time.perf_counter()
-
-    def note(msg):
-        if progress:
-            print(f"[demo {time.perf_counter() - t0:5.1f} s] {msg}", file=sys.stderr, flush=True)
-
-    out_dir = pathlib.Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    data = synthesize(DEMO_RECIPE)
-    note(f"synthesised {data.n} samples x {data.n_channels} channels "
-         f"({DEMO_RECIPE['plan']['name']} plan, seed {DEMO_RECIPE['seed']})")
-    results = {}
-    for k, (name, init) in enumerate(DEMO_FITS, 1):
-        r = fit(data, name, init=init, metric=DEMO_METRIC)
-        results[name] = r
-        note(f"fit {k}/{len(DEMO_FITS)} {name}: rms {r.residual_rms:.4g}, {r.steps} steps, "
-             f"{'converged' if r.converged else 'NOT converged'}, {r.seconds:.1f} s")
-    ranked = sorted(results.values(), key=lambda r: r.residual_rms)
-    best = ranked[0]
-    checks = run_checks(best.model, checks=list(DEMO_CHECKS), name=best.model_name,
-                        expected_failures=_registry().get(best.model_name).expected_failures)
-    best.checks = checks
-    note(f"checks on {best.model_name}: "
-         + ", ".join(f"{c.check} {c.status}" for c in checks))
-    files, plot_note = _demo_plots(data, ranked, out_dir) if plots else ([], "plots disabled")
-    if files:
-        note(f"plots: {', '.join(files)}")
-    doc = {
-        "recipe": DEMO_RECIPE,
-        "dataset": {"n_samples": data.n, "channels": list(data.channels),
-                    "plan": data.metadata["plan"], "noise": data.metadata["noise"]},
-        "truth": {"model": DEMO_RECIPE["model"],
-                  "params": {k: np.asarray(v).tolist()
-                             for k, v in _registry().get(DEMO_RECIPE["model"]).defaults().items()
-                             } | DEMO_RECIPE["params"]},
-        "metric": DEMO_METRIC,
-        "residual_units": "sigma" if data.sigma is not None else "metric",
-        "ranking": [r.model_name for r in ranked],
-        "best": best.model_name,
-        "fits": [r.to_dict() for r in ranked],
-        "conversions": _demo_conversions(results),
-        "ggx_alpha": {n: float(np.asarray(results[n].params["alpha"]))
-                      for n in ("ggx-conductor", "ggx", "beckmann") if n in results},
-        "checks": [c.to_dict() for c in checks],
-        "plots": files,
-        "plot_note": plot_note,
-        "seconds": 0.0,
-    }
-    doc["seconds"] = round(time.perf_counter() - t0, 2)
-    path = out_dir / "demo.json"
-    doc["output"] = str(path)
-    path.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
-    return doc
 
 
 def _print_demo(doc: dict) -> None:
@@ -699,6 +558,8 @@ def _print_demo(doc: dict) -> None:
 def cmd_demo(args) -> int:
     """The main job on an embedded default (no input): synthesise -> fit -> rank -> convert ->
     check -> plots, written into ``--out``."""
+    from brdf_fit.demo import run_demo
+
     doc = run_demo(args.out, plots=not args.no_plots, progress=not args.quiet)
     if args.json:
         print(json.dumps(doc, indent=2))
@@ -868,13 +729,14 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     already imported, so the CLI imports nothing for them: an exception of a module that was
     never imported cannot have been raised."""
     errors: list[type[BaseException]] = [CLIError]
-    for module, names in (("brdf_fit._validate", ("ParameterError",)),
-                          ("brdf_fit.fit", ("FitError",)),
+    for module, names in (("brdf_fit.core.validate", ("ParameterError",)),
+                          ("brdf_fit.fitting.problem", ("FitError",)),
+                          ("brdf_fit.fitting.single", ("FitError",)),
                           ("brdf_fit.data", ("DataError",)),
                           ("data_synth.recipes", ("RecipeError",)),
                           ("data_synth.plans", ("PlanError",)),
                           ("data_synth.noise", ("NoiseError",)),
-                          ("brdf_fit.convert_fit", ("ConversionError",))):
+                          ("brdf_fit.convert.phong_to_ggx", ("ConversionError",))):
         mod = sys.modules.get(module)
         errors.extend(getattr(mod, n) for n in names if mod is not None and hasattr(mod, n))
     return tuple(errors)

@@ -182,9 +182,9 @@ def test_synth_errors(tmp_path, capsys):
 
 def test_demo_plumbing(tmp_path, capsys, monkeypatch):
     """The demo's outputs with two quick fits and no plots (the full run is test_demo, slow)."""
-    from brdf_fit import cli
+    from brdf_fit import demo
 
-    monkeypatch.setattr(cli, "DEMO_FITS", (("blinn-phong-approx", {}), ("modified-phong", {})))
+    monkeypatch.setattr(demo, "DEMO_FITS", (("blinn-phong-approx", {}), ("modified-phong", {})))
     out = tmp_path / "demo"
     assert main(["demo", "--out", str(out), "--no-plots"]) == 0
     captured = capsys.readouterr()
