@@ -32,6 +32,23 @@ import sys
 
 import numpy as np
 
+from brdf_fit._version import __version__
+
+#: the check names, for --help without importing JAX (tests/cli holds them equal to
+#: brdf_fit.verify.checks.CHECKS)
+CHECK_NAMES = ("non-negative", "reciprocity", "energy", "ndf-normalisation", "weak-white-furnace",
+               "white-furnace", "pdf-normalisation", "sampling-weight", "chi2", "finite")
+
+
+def _positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {v}")
+    return v
+
 
 class CLIError(Exception):
     """A user error: printed as one line, exit status 2."""
@@ -90,6 +107,18 @@ def cmd_models(args) -> int:
 def cmd_catalogue(args) -> int:
     from brdf_fit.verify import catalogue
 
+    if args.write_readme:
+        import pathlib
+
+        readme = pathlib.Path(args.write_readme)
+        if not readme.is_file():
+            raise CLIError(f"{readme}: no such file (--write-readme rewrites the catalogue "
+                           "section of an existing README)")
+        check_output_file(str(readme), (readme.suffix.lower(),), "--write-readme")
+        text = readme.read_text(encoding="utf-8", errors="replace")
+        if catalogue.README_BEGIN not in text or catalogue.README_END not in text:
+            raise CLIError(f"{readme}: no generated catalogue section (markers "
+                           f"{catalogue.README_BEGIN!r} ... {catalogue.README_END!r})")
     records = catalogue.table()
     if args.write_readme:
         changed = catalogue.update_readme(args.write_readme, catalogue.markdown(records))
@@ -255,6 +284,40 @@ def _ext(path: str) -> str:
     return pathlib.Path(path).suffix.lower()
 
 
+def check_output_file(path: str, exts: tuple[str, ...], flag: str) -> None:
+    """Refuse an output file before any work: a known extension, not a folder, and a folder to
+    write it in that exists and is writable (nothing computed is then lost on the write)."""
+    import os
+    import pathlib
+
+    p = pathlib.Path(path)
+    if _ext(path) not in exts:
+        raise CLIError(f"{path}: {flag} expects {' or '.join(exts)}")
+    if p.is_dir():
+        raise CLIError(f"{path}: {flag} names a folder, not a file")
+    parent = p.parent if str(p.parent) else pathlib.Path(".")
+    if not parent.is_dir():
+        raise CLIError(f"{path}: cannot write: folder {str(parent)!r} does not exist")
+    if not os.access(parent, os.W_OK) or (p.exists() and not os.access(p, os.W_OK)):
+        raise CLIError(f"{path}: cannot write: permission denied")
+
+
+def check_output_dir(path: str, flag: str) -> None:
+    """Refuse an output folder before any work: not an existing file, creatable, writable."""
+    import os
+    import pathlib
+
+    p = pathlib.Path(path)
+    if p.exists() and not p.is_dir():
+        raise CLIError(f"{path}: {flag} names an existing file, not a folder")
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise CLIError(f"{path}: cannot create the folder ({e.strerror or e})") from None
+    if not os.access(p, os.W_OK):
+        raise CLIError(f"{path}: cannot write into the folder: permission denied")
+
+
 def read_data(path: str):
     """:func:`brdf_fit.io.read`, with its errors as one-line CLI errors."""
     from brdf_fit import io
@@ -284,9 +347,8 @@ def cmd_synth(args) -> int:
     _x64()
     from data_synth.recipes import synthesize
 
-    ext = _ext(args.output)
-    if ext not in (".csv", ".npz"):
-        write_data(None, args.output)  # raises the format error before the work
+    write_data(None, args.output)  # the format error before the work
+    check_output_file(args.output, (".csv", ".npz"), "-o")
     data = synthesize(args.recipe)
     meta = data.metadata
     files = write_data(data, args.output,
@@ -466,8 +528,8 @@ def cmd_fit_batch(args) -> int:
     both = sorted(set(fix) & set(init))
     if both:
         raise CLIError(f"parameter(s) {', '.join(both)} given both --fix and --init")
-    if args.out is not None and _ext(args.out) not in (".csv", ".json"):
-        raise CLIError(f"{args.out}: --out expects .csv or .json")
+    if args.out is not None:
+        check_output_file(args.out, (".csv", ".json"), "--out")
     good, bad = _read_many(args.data, args.skip_bad)
     # one batch per (sample count, channels, sigma or not): fit_batch stacks equal shapes
     groups: dict = {}
@@ -558,6 +620,7 @@ def _print_demo(doc: dict) -> None:
 def cmd_demo(args) -> int:
     """The main job on an embedded default (no input): synthesise -> fit -> rank -> convert ->
     check -> plots, written into ``--out``."""
+    check_output_dir(args.out, "--out")
     from brdf_fit.demo import run_demo
 
     doc = run_demo(args.out, plots=not args.no_plots, progress=not args.quiet)
@@ -622,11 +685,14 @@ def _fit_options(p, what: str) -> None:
     p.add_argument("--max-zenith-deg", type=float, default=None,
                    help=f"{what} samples with either direction beyond this zenith angle")
     p.add_argument("--cos-weight", action="store_true", help="weight residuals by cos(theta_i)")
-    p.add_argument("--max-steps", type=int, default=256)
+    p.add_argument("--max-steps", type=_positive_int, default=256, metavar="N",
+                   help="stop a fit after N solver steps (default 256; it is then reported as "
+                        "not converged)")
 
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="brdf-fit", description=__doc__.split("\n")[0])
+    p.add_argument("--version", action="version", version=f"brdf-fit {__version__}")
     sub = p.add_subparsers(dest="command", required=True)
 
     m = sub.add_parser("models", help="list the registered models and their parameters")
@@ -644,17 +710,24 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("model")
     e.add_argument("--param", action="append", metavar="NAME=VALUE",
                    help="parameter value (comma-separated for channels); repeatable")
-    e.add_argument("--theta-i-deg", type=float, nargs="+", default=[0.0, 30.0, 60.0])
-    e.add_argument("--theta-o-deg", type=float, nargs="+", default=[0.0, 30.0, 60.0, 85.0])
-    e.add_argument("--json", action="store_true")
+    e.add_argument("--theta-i-deg", type=float, nargs="+", default=[0.0, 30.0, 60.0],
+                   metavar="DEG", help="zenith angles of the light in [0, 90] degrees "
+                                       "(default: 0 30 60)")
+    e.add_argument("--theta-o-deg", type=float, nargs="+", default=[0.0, 30.0, 60.0, 85.0],
+                   metavar="DEG", help="zenith angles of the viewer in [0, 90] degrees, on the "
+                                       "far side of the normal (default: 0 30 60 85)")
+    e.add_argument("--json", action="store_true", help="machine-readable table")
     e.set_defaults(func=cmd_eval)
 
     c = sub.add_parser("check", help="energy, reciprocity, normalisation and sampling checks")
     c.add_argument("model", nargs="?", help="registry name (see 'brdf-fit models')")
     c.add_argument("--all", action="store_true", help="check every registered model")
-    c.add_argument("--param", action="append", metavar="NAME=VALUE")
+    c.add_argument("--param", action="append", metavar="NAME=VALUE",
+                   help="parameter value of MODEL (comma-separated for channels); repeatable; "
+                        "default: the registry defaults")
     c.add_argument("--check", action="append", metavar="NAME",
-                   help="run only this check (repeatable); default: all")
+                   help="run only this check (repeatable); default: all of "
+                        + ", ".join(CHECK_NAMES))
     c.add_argument("--json", action="store_true",
                    help="one record per (model, check): model, check, passed, statistic, ...")
     c.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -663,7 +736,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.set_defaults(func=cmd_check)
 
     y = sub.add_parser("synth", help="synthesise a dataset from a recipe (.json/.toml)")
-    y.add_argument("recipe", help="recipe file (see data_synth.recipes)")
+    y.add_argument("recipe", help="recipe file (.json or .toml): model, params, seed, plan, "
+                                  "noise; examples in examples/ (see data_synth.recipes)")
     y.add_argument("-o", "--output", required=True, metavar="FILE",
                    help="output data file: .csv or .npz (+ .json sidecar)")
     y.add_argument("--json", action="store_true", help="machine-readable summary")
@@ -675,10 +749,10 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--solver", default="lm",
                    help="lm (default), levenberg-marquardt, gauss-newton, gauss-newton-plain, "
                         "dogleg")
-    f.add_argument("--multistart", type=int, default=1, metavar="K",
+    f.add_argument("--multistart", type=_positive_int, default=1, metavar="K",
                    help="K starts (the first from --init, the others perturbed); best loss wins")
     f.add_argument("--seed", type=int, default=0, help="seed of multistart and --max-samples")
-    f.add_argument("--max-samples", type=int, default=None, metavar="N",
+    f.add_argument("--max-samples", type=_positive_int, default=None, metavar="N",
                    help="fit a seeded random subset of N samples (e.g. of a MERL file)")
     f.add_argument("--check", action="append", metavar="NAME",
                    help="run this check on the fitted model (repeatable)")

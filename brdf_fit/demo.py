@@ -75,10 +75,6 @@ def _demo_conversions(results: dict) -> list[dict]:
 
 
 def _demo_plots(data, ranked, out_dir) -> tuple[list[str], str | None]:
-    try:
-        import matplotlib  # noqa: F401
-    except ImportError:
-        return [], "matplotlib is not installed: plots skipped (pip install matplotlib)"
     models = [(r.model_name, r.model) for r in ranked]
     files = []
     truth = ", ".join(f"{k}={v}" for k, v in DEMO_RECIPE["params"].items())
@@ -125,9 +121,6 @@ def run_demo(out_dir, plots: bool = True, progress: bool = True) -> dict:
     best.checks = checks
     note(f"checks on {best.model_name}: "
          + ", ".join(f"{c.check} {c.status}" for c in checks))
-    files, plot_note = _demo_plots(data, ranked, out_dir) if plots else ([], "plots disabled")
-    if files:
-        note(f"plots: {', '.join(files)}")
     doc = {
         "recipe": DEMO_RECIPE,
         "dataset": {"n_samples": data.n, "channels": list(data.channels),
@@ -145,12 +138,24 @@ def run_demo(out_dir, plots: bool = True, progress: bool = True) -> dict:
         "ggx_alpha": {n: float(np.asarray(results[n].params["alpha"]))
                       for n in ("ggx-conductor", "ggx", "beckmann") if n in results},
         "checks": [c.to_dict() for c in checks],
-        "plots": files,
-        "plot_note": plot_note,
+        "plots": [],
+        "plot_note": "plots disabled" if not plots else None,
         "seconds": 0.0,
     }
-    doc["seconds"] = round(time.perf_counter() - t0, 2)
     path = out_dir / "demo.json"
     doc["output"] = str(path)
-    path.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+
+    def write():
+        doc["seconds"] = round(time.perf_counter() - t0, 2)
+        path.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+
+    write()  # the results are on disk before any plot is attempted
+    if plots:
+        try:
+            doc["plots"], doc["plot_note"] = _demo_plots(data, ranked, out_dir)
+        except Exception as e:  # a failing plot never loses the computed results
+            doc["plot_note"] = f"plots failed ({type(e).__name__}: {e}); demo.json is complete"
+        if doc["plots"]:
+            note(f"plots: {', '.join(doc['plots'])}")
+        write()
     return doc
