@@ -23,7 +23,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["GonioData", "DataError", "wavelength_channels", "channel_wavelengths"]
+__all__ = ["GonioData", "DataError", "MAX_VALUE", "UNIT_TOL", "wavelength_channels",
+           "channel_wavelengths"]
 
 
 class DataError(ValueError):
@@ -33,6 +34,13 @@ class DataError(ValueError):
 #: Unit-length tolerance for directions: values written with 6 significant digits (CSV angles in
 #: degrees to 1e-4) reproduce unit vectors to ~1e-6; 1e-4 accepts those, rejects real errors.
 UNIT_TOL = 1e-4
+#: Largest |BRDF value| (1/sr) a data file may hold. No registry model reaches it at any
+#: parameter value the registry allows (GGX at its smallest width, alpha = 1e-4, peaks near 1e7
+#: at normal incidence; MERL's measured materials stay below 1e4), so a larger value is a
+#: corrupt field or a unit mix-up, and refusing it keeps every sum of squares a fit forms
+#: (1e30 per sample) far inside float64: one value of 1e300 used to overflow the normal
+#: equations and hang the fit in an SVD of infinities.
+MAX_VALUE = 1e15
 
 
 def wavelength_channels(wavelengths_nm) -> tuple[str, ...]:
@@ -113,7 +121,8 @@ class GonioData:
 
     def validate(self, allow_negative_sigmas: float = 5.0) -> GonioData:
         """Raise :class:`DataError` naming the first offending sample: non-finite numbers,
-        non-unit directions, directions below the horizon with non-zero weight, negative weights,
+        values beyond :data:`MAX_VALUE` in magnitude, non-unit directions, directions below the
+        horizon with non-zero weight, negative weights,
         or values more negative than ``allow_negative_sigmas`` standard deviations (noise can make
         a measured value slightly negative; beyond that it is an error). Returns ``self``."""
 
@@ -143,6 +152,11 @@ class GonioData:
                     f"sample {i}: {name} is at or below the horizon (theta = {theta:.4g} deg) "
                     "but has non-zero weight"
                 )
+        huge = np.abs(self.value) > MAX_VALUE
+        if huge.any():
+            i = first(huge)
+            raise DataError(f"sample {i}: value {self.value[i].tolist()} exceeds {MAX_VALUE:g} "
+                            "1/sr in magnitude (brdf_fit.data.MAX_VALUE): not a BRDF value")
         if (self.weight < 0).any():
             i = first(self.weight < 0)
             raise DataError(f"sample {i}: negative weight {self.weight[i].tolist()}")
