@@ -196,26 +196,35 @@ register(Entry(
     aliases=("ts",),
 ))
 
-register(Entry(
-    name="beckmann",
-    year=2007,
-    catalogue=None,
-    sampler="exact visible normals",
-    builder=lambda alpha, f0: _mf(Beckmann(alpha), SmithHeightCorrelated(), SchlickFresnel(f0)),
-    params=(_alpha(), _unit("f0", (0.04, 0.04, 0.04), "normal-incidence reflectance")),
+#: the normal-incidence reflectance of the Schlick-Fresnel microfacet entries
+_F0 = _unit("f0", (0.04, 0.04, 0.04), "normal-incidence reflectance")
+#: the two widths of the anisotropic entries
+_ALPHA_XY = (_alpha("alpha_x", 0.1, "width along the tangent x"),
+             _alpha("alpha_y", 0.4, "width along the bitangent y"))
+
+
+def _smith_entry(name, builder, params, reference, description, **kw) -> Entry:
+    """An entry of the microfacet family of Walter et al. 2007 / Heitz 2014 (no row of the
+    catalogue table; sampled with exact visible normals)."""
+    return Entry(name=name, year=2007, catalogue=None, sampler="exact visible normals",
+                 builder=builder, params=params, reference=reference, description=description,
+                 **kw)
+
+
+register(_smith_entry(
+    "beckmann",
+    lambda alpha, f0: _mf(Beckmann(alpha), SmithHeightCorrelated(), SchlickFresnel(f0)),
+    (_alpha(), _F0),
     reference=f"{_WALTER} (D eq. 25); {_HEITZ} (height-correlated G2 eq. 99); {_SCHLICK}",
     description="Beckmann D, height-correlated Smith G (exact erf Lambda), Schlick F",
 ))
 
-register(Entry(
-    name="beckmann-walter",
-    year=2007,
-    catalogue=None,
-    sampler="exact visible normals",
-    builder=lambda alpha, f0: _mf(
+register(_smith_entry(
+    "beckmann-walter",
+    lambda alpha, f0: _mf(
         Beckmann(alpha, lambda_approx="walter"), SmithSeparable(), SchlickFresnel(f0)
     ),
-    params=(_alpha(), _unit("f0", (0.04, 0.04, 0.04), "normal-incidence reflectance")),
+    (_alpha(), _F0),
     reference=f"{_WALTER} (D eq. 25, rational G1 eq. 27, separable G eq. 23); {_SCHLICK}",
     description="Beckmann D, separable Smith G with Walter's rational Lambda, Schlick F",
     expected_failures={
@@ -227,81 +236,57 @@ register(Entry(
     },
 ))
 
-register(Entry(
-    name="ggx",
-    year=2007,
-    catalogue=None,
-    sampler="exact visible normals",
-    builder=lambda alpha, f0: _mf(GGX(alpha), SmithHeightCorrelated(), SchlickFresnel(f0)),
-    params=(_alpha(), _unit("f0", (0.04, 0.04, 0.04), "normal-incidence reflectance")),
+register(_smith_entry(
+    "ggx",
+    lambda alpha, f0: _mf(GGX(alpha), SmithHeightCorrelated(), SchlickFresnel(f0)),
+    (_alpha(), _F0),
     reference=f"{_TR}; {_WALTER} (eq. 33); {_HEITZ} (eq. 99); {_SCHLICK}",
     description="GGX D, height-correlated Smith G, Schlick F",
     aliases=("trowbridge-reitz", "ggx-smith"),
 ))
 
-register(Entry(
-    name="ggx-separable",
-    year=2007,
-    catalogue=None,
-    sampler="exact visible normals",
-    builder=lambda alpha, f0: _mf(GGX(alpha), SmithSeparable(), SchlickFresnel(f0)),
-    params=(_alpha(), _unit("f0", (0.04, 0.04, 0.04), "normal-incidence reflectance")),
+register(_smith_entry(
+    "ggx-separable",
+    lambda alpha, f0: _mf(GGX(alpha), SmithSeparable(), SchlickFresnel(f0)),
+    (_alpha(), _F0),
     reference=f"{_WALTER} (eqs. 23, 33, 34); {_SCHLICK}",
     description="GGX D, separable (uncorrelated) Smith G, Schlick F",
 ))
 
-register(Entry(
-    name="ggx-conductor",
-    year=2007,
-    catalogue=None,
-    sampler="exact visible normals",
-    builder=lambda alpha, eta, k: _mf(GGX(alpha), SmithHeightCorrelated(),
-                                      ConductorFresnel(eta, k)),
-    params=(_alpha(), _ETA_AU, _K_AU),
+register(_smith_entry(
+    "ggx-conductor",
+    lambda alpha, eta, k: _mf(GGX(alpha), SmithHeightCorrelated(), ConductorFresnel(eta, k)),
+    (_alpha(), _ETA_AU, _K_AU),
     reference=f"{_WALTER}; {_HEITZ}; exact conductor Fresnel (Born & Wolf 1.5.2)",
     description="GGX D, height-correlated Smith G, exact conductor Fresnel (default gold, RGB)",
     aliases=("rough-conductor",),
 ))
 
-register(Entry(
-    name="ggx-aniso",
-    year=2007,
-    catalogue=None,
-    sampler="exact visible normals",
-    builder=lambda alpha_x, alpha_y, f0: _mf(GGX(alpha_x, alpha_y), SmithHeightCorrelated(),
-                                             SchlickFresnel(f0)),
-    params=(_alpha("alpha_x", 0.1, "width along the tangent x"),
-            _alpha("alpha_y", 0.4, "width along the bitangent y"),
-            _unit("f0", (0.04, 0.04, 0.04), "normal-incidence reflectance")),
+register(_smith_entry(
+    "ggx-aniso",
+    lambda alpha_x, alpha_y, f0: _mf(GGX(alpha_x, alpha_y), SmithHeightCorrelated(),
+                                     SchlickFresnel(f0)),
+    (*_ALPHA_XY, _F0),
     reference=f"{_HEITZ} (anisotropic D eq. 85, Lambda eq. 86); {_SCHLICK}",
     description="anisotropic GGX, height-correlated Smith G, Schlick F",
     tags=("anisotropic",),
 ))
 
-register(Entry(
-    name="beckmann-aniso",
-    year=2007,
-    catalogue=None,
-    sampler="exact visible normals",
-    builder=lambda alpha_x, alpha_y, f0: _mf(Beckmann(alpha_x, alpha_y), SmithHeightCorrelated(),
-                                             SchlickFresnel(f0)),
-    params=(_alpha("alpha_x", 0.1, "width along the tangent x"),
-            _alpha("alpha_y", 0.4, "width along the bitangent y"),
-            _unit("f0", (0.04, 0.04, 0.04), "normal-incidence reflectance")),
+register(_smith_entry(
+    "beckmann-aniso",
+    lambda alpha_x, alpha_y, f0: _mf(Beckmann(alpha_x, alpha_y), SmithHeightCorrelated(),
+                                     SchlickFresnel(f0)),
+    (*_ALPHA_XY, _F0),
     reference=f"{_HEITZ} (anisotropic D eq. 84); {_SCHLICK}",
     description="anisotropic Beckmann, height-correlated Smith G, Schlick F",
     tags=("anisotropic",),
 ))
 
-register(Entry(
-    name="ggx-conductor-aniso",
-    year=2007,
-    catalogue=None,
-    sampler="exact visible normals",
-    builder=lambda alpha_x, alpha_y, eta, k: _mf(GGX(alpha_x, alpha_y), SmithHeightCorrelated(),
-                                                 ConductorFresnel(eta, k)),
-    params=(_alpha("alpha_x", 0.1, "width along the tangent x"),
-            _alpha("alpha_y", 0.4, "width along the bitangent y"), _ETA_AU, _K_AU),
+register(_smith_entry(
+    "ggx-conductor-aniso",
+    lambda alpha_x, alpha_y, eta, k: _mf(GGX(alpha_x, alpha_y), SmithHeightCorrelated(),
+                                         ConductorFresnel(eta, k)),
+    (*_ALPHA_XY, _ETA_AU, _K_AU),
     reference=f"{_HEITZ}; exact conductor Fresnel",
     description="anisotropic GGX, height-correlated Smith G, exact conductor Fresnel (gold)",
     tags=("anisotropic",),
@@ -332,7 +317,7 @@ register(Entry(
     builder=lambda exponent, f0: _mf(BlinnPhongNDF(exponent), SmithHeightCorrelated(),
                                      SchlickFresnel(f0)),
     params=(Param("exponent", 50.0, lo=0.0, doc="Blinn-Phong exponent of the NDF"),
-            _unit("f0", (0.04, 0.04, 0.04), "normal-incidence reflectance")),
+            _F0),
     reference=(
         "J. F. Blinn, Models of light reflection for computer synthesized pictures, SIGGRAPH "
         f"1977; normalised NDF and Beckmann-mapped Smith G: {_WALTER} (section 5.2)"

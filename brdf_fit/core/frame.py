@@ -9,8 +9,6 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
-from brdf_fit.core.numerics import safe_normalize3
-
 
 def split(w):
     """``(x, y, z)`` components of ``w`` (..., 3)."""
@@ -22,50 +20,9 @@ def join(x, y, z):
     return jnp.stack(jnp.broadcast_arrays(x, y, z), axis=-1)
 
 
-def cos_theta(w):
-    return w[..., 2]
-
-
-def sin2_theta(w):
-    return jnp.maximum(0.0, 1.0 - w[..., 2] ** 2)
-
-
-def reflect(w, m):
-    """Mirror ``w`` about the unit normal ``m``: ``2 (w.m) m - w``."""
-    d = jnp.sum(w * m, axis=-1, keepdims=True)
-    return 2.0 * d * m - w
-
-
 def mirror(w):
     """Mirror direction about the shading normal: ``(-x, -y, z)``."""
     return w * jnp.asarray([-1.0, -1.0, 1.0], dtype=w.dtype)
-
-
-def half_vector(wi, wo):
-    """Normalised ``wi + wo`` and a flag that is False where it vanishes (``wi == -wo``)."""
-    x, y, z, ok = safe_normalize3(
-        wi[..., 0] + wo[..., 0], wi[..., 1] + wo[..., 1], wi[..., 2] + wo[..., 2]
-    )
-    return join(x, y, z), ok
-
-
-def same_hemisphere(wi, wo):
-    return wi[..., 2] * wo[..., 2] > 0
-
-
-def spherical_to_direction(theta, phi):
-    """Direction from polar angle ``theta`` (from the normal) and azimuth ``phi`` (from x),
-    radians."""
-    s = jnp.sin(theta)
-    return join(s * jnp.cos(phi), s * jnp.sin(phi), jnp.cos(theta))
-
-
-def direction_to_spherical(w):
-    """``(theta, phi)`` of ``w``, radians, ``phi`` in (-pi, pi]. For I/O only: not gradient-safe
-    at the pole."""
-    theta = jnp.arccos(jnp.clip(w[..., 2], -1.0, 1.0))
-    phi = jnp.arctan2(w[..., 1], w[..., 0])
-    return theta, phi
 
 
 def frame_from_normal(n, t=None):
@@ -85,11 +42,6 @@ def frame_from_normal(n, t=None):
         t = t / jnp.linalg.norm(t, axis=-1, keepdims=True)
     bvec = jnp.cross(n, t)
     return t, bvec, n
-
-
-def to_local(w, t, b, n):
-    """World direction to the local frame (x = t, y = b, z = n)."""
-    return join(jnp.sum(w * t, -1), jnp.sum(w * b, -1), jnp.sum(w * n, -1))
 
 
 def to_world(w, t, b, n):

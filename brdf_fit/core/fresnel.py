@@ -17,10 +17,13 @@ References
 
 from __future__ import annotations
 
+import abc
+
 import equinox as eqx
 import jax.numpy as jnp
 
 from brdf_fit.core.numerics import pow5, safe_div, safe_hypot, safe_sqrt
+from brdf_fit.core.params import Channels, Scalar, bounded
 
 __all__ = [
     "schlick",
@@ -28,6 +31,7 @@ __all__ = [
     "conductor",
     "f0_from_ior",
     "ior_from_f0",
+    "AbstractFresnel",
     "SchlickFresnel",
     "DielectricFresnel",
     "ConductorFresnel",
@@ -131,24 +135,36 @@ def ior_from_f0(f0):
     return (1.0 + s) / (1.0 - s)
 
 
-class SchlickFresnel(eqx.Module):
+class AbstractFresnel(eqx.Module):
+    """The Fresnel part of a microfacet model or of a mirror: ``F(cos)`` with ``cos`` the cosine
+    on the (micro)facet (abstract; the concrete parts below are final)."""
+
+    @abc.abstractmethod
+    def __call__(self, cos):
+        """Reflectance at ``cos`` (broadcast against the parameters' channel axis)."""
+
+    @abc.abstractmethod
+    def reflectance_hint(self):
+        """Largest normal-incidence reflectance over channels (mixtures pick lobes with it)."""
+
+
+class SchlickFresnel(AbstractFresnel):
     """Schlick's approximation as a microfacet-model component. ``f0`` may be RGB."""
 
-    f0: object = 0.04
-    f90: object = 1.0
+    f0: Channels = bounded(0.04, lo=0.0, hi=1.0, channels=True)
+    f90: Scalar = bounded(1.0, lo=0.0, hi=1.0)
 
     def __call__(self, cos):
         return schlick(cos, self.f0, self.f90)
 
     def reflectance_hint(self):
-        """Largest normal-incidence reflectance over channels (used to pick lobes in mixtures)."""
         return jnp.max(jnp.asarray(self.f0))
 
 
-class DielectricFresnel(eqx.Module):
+class DielectricFresnel(AbstractFresnel):
     """Exact dielectric Fresnel (:func:`dielectric`) with relative index ``eta``."""
 
-    eta: object = 1.5
+    eta: Channels = bounded(1.5, lo=0.0, lo_open=True, channels=True)
 
     def __call__(self, cos):
         return dielectric(cos, self.eta)
@@ -157,7 +173,7 @@ class DielectricFresnel(eqx.Module):
         return jnp.max(f0_from_ior(jnp.asarray(self.eta)))
 
 
-class ConductorFresnel(eqx.Module):
+class ConductorFresnel(AbstractFresnel):
     """Exact conductor Fresnel (:func:`conductor`) with complex index ``eta + i k``.
 
     ``eta`` and ``k`` may be RGB triples (effective values, see :mod:`brdf_fit.spectra`) or
@@ -165,8 +181,8 @@ class ConductorFresnel(eqx.Module):
     :func:`brdf_fit.core.spectra.conductor_fresnel` (``conductor_fresnel("Cu")``).
     """
 
-    eta: object = 0.2
-    k: object = 3.0
+    eta: Channels = bounded(0.2, lo=0.0, lo_open=True, channels=True)
+    k: Channels = bounded(3.0, lo=0.0, channels=True)
 
     def __call__(self, cos):
         return conductor(cos, self.eta, self.k)
@@ -175,10 +191,10 @@ class ConductorFresnel(eqx.Module):
         return jnp.max(f0_from_ior(jnp.asarray(self.eta), jnp.asarray(self.k)))
 
 
-class ConstantFresnel(eqx.Module):
+class ConstantFresnel(AbstractFresnel):
     """F = ``value`` for every angle (``value = 1`` for white-furnace tests)."""
 
-    value: object = 1.0
+    value: Channels = bounded(1.0, lo=0.0, hi=1.0, channels=True)
 
     def __call__(self, cos):
         return jnp.asarray(self.value) + 0.0 * cos

@@ -38,6 +38,7 @@ References
 
 from __future__ import annotations
 
+import abc
 import math
 from typing import ClassVar
 
@@ -54,9 +55,12 @@ from brdf_fit.core.numerics import (
     safe_rsqrt,
     safe_sqrt,
 )
+from brdf_fit.core.params import Scalar, bounded
 from brdf_fit.core.validate import check_param
 
 __all__ = [
+    "AbstractDistribution",
+    "AbstractMasking",
     "GGX",
     "Beckmann",
     "BlinnPhongNDF",
@@ -88,24 +92,55 @@ def reflect_about(wx, wy, wz, mx, my, mz):
     return d2 * mx - wx, d2 * my - wy, d2 * mz - wz
 
 
-def _alphas(ax, ay):
-    return jnp.maximum(ax, ALPHA_MIN), jnp.maximum(ay, ALPHA_MIN)
+def _check_widths(alpha_x, alpha_y):
+    check_param("alpha_x", alpha_x, lo=0.0, lo_open=True)
+    if alpha_y is not None:
+        check_param("alpha_y", alpha_y, lo=0.0, lo_open=True)
 
 
-class _Distribution(eqx.Module):
-    """Shared interface of the normal distributions (private base; the public classes are final).
+def _widths(alpha_x, alpha_y):
+    """``(alpha_x, alpha_y)`` as a distribution evaluates them: ``alpha_y = alpha_x`` when None,
+    both clamped below at ``ALPHA_MIN`` (gradient 0 below the clamp)."""
+    ay = alpha_x if alpha_y is None else alpha_y
+    return jnp.maximum(alpha_x, ALPHA_MIN), jnp.maximum(ay, ALPHA_MIN)
+
+
+class AbstractDistribution(eqx.Module):
+    """A microfacet normal distribution ``D`` with its Smith masking quantity ``P`` and its
+    samplers (abstract; every concrete distribution is final: compose, don't inherit).
 
     Methods take components ``(x, y, z)`` of unit vectors in the local frame.
     """
 
+    #: whether :meth:`sample_visible` exists (else :class:`~brdf_fit.models.MicrofacetBRDF` draws
+    #: ``m ~ D(m)(n.m)`` or, with V-cavity masking, the V-cavity visible normals)
     supports_visible: ClassVar[bool] = True
 
-    def D(self, mx, my, mz):  # pragma: no cover - interface
-        raise NotImplementedError
+    @abc.abstractmethod
+    def D(self, mx, my, mz):
+        """The distribution of normals, normalised on projected area (0 for ``m.z <= 0``)."""
 
-    def P(self, wx, wy, wz):  # pragma: no cover - interface
+    @abc.abstractmethod
+    def P(self, wx, wy, wz):
         """``(n.w)(1 + 2 Lambda(w))``, division-free (see the module docstring)."""
-        raise NotImplementedError
+
+    @abc.abstractmethod
+    def sample_normal(self, u1, u2):
+        """Sample ``m ~ D(m)(n.m)`` from two uniforms; returns the components of ``m``."""
+
+    @abc.abstractmethod
+    def sample_visible(self, wx, wy, wz, u1, u2):
+        """Sample the normals visible from ``w`` (density :meth:`pdf_visible`)."""
+
+    @abc.abstractmethod
+    def widths(self):
+        """``(alpha_x, alpha_y)``: the Beckmann/GGX widths the lobe has (or is equivalent to), as
+        evaluated (clamped below at ``ALPHA_MIN``); what the half-vector quadrature rule of
+        :func:`brdf_fit.core.quadrature.halfvector_rule` is built for. May return tracers."""
+
+    def is_anisotropic(self) -> bool:
+        """Whether the distribution is given two widths (views at several azimuths needed)."""
+        return False
 
     def P_exact(self, wx, wy, wz):
         """``P`` with the exact Lambda (what the visible-normal sampler draws from)."""
@@ -142,7 +177,7 @@ def _stretched_slopes_to_normal(sx, sy, ax, ay):
     return x, y, z
 
 
-class GGX(_Distribution):
+class GGX(AbstractDistribution):
     """Trowbridge-Reitz / GGX distribution (Trowbridge & Reitz 1975; Walter et al. 2007, eq. 33),
     anisotropic form of Heitz 2014 (eq. 85)::
 
@@ -152,32 +187,32 @@ class GGX(_Distribution):
     Visible normals are sampled with spherical caps (Dupuy & Benyoub 2023).
     """
 
-    alpha_x: object = 0.5
-    alpha_y: object = None
+    alpha_x: Scalar = bounded(0.5, lo=0.0, hi=1.0, lo_open=True)
+    alpha_y: Scalar | None = bounded(None, lo=0.0, hi=1.0, lo_open=True)
 
     def __check_init__(self):
-        check_param("alpha_x", self.alpha_x, lo=0.0, lo_open=True)
-        if self.alpha_y is not None:
-            check_param("alpha_y", self.alpha_y, lo=0.0, lo_open=True)
+        _check_widths(self.alpha_x, self.alpha_y)
 
-    def _a(self):
-        ay = self.alpha_x if self.alpha_y is None else self.alpha_y
-        return _alphas(self.alpha_x, ay)
+    def widths(self):
+        return _widths(self.alpha_x, self.alpha_y)
+
+    def is_anisotropic(self) -> bool:
+        return self.alpha_y is not None
 
     def D(self, mx, my, mz):
-        ax, ay = self._a()
+        ax, ay = self.widths()
         s = (mx / ax) ** 2 + (my / ay) ** 2 + mz * mz
         return jnp.where(mz > 0, 1.0 / (PI * ax * ay * s * s), 0.0)
 
     def P(self, wx, wy, wz):
-        ax, ay = self._a()
+        ax, ay = self.widths()
         return jnp.sqrt((ax * wx) ** 2 + (ay * wy) ** 2 + wz * wz)
 
     def sample_normal(self, u1, u2):
         """Sample ``m ~ D(m)(n.m)``: isotropic unit-roughness slope radius
         ``r = sqrt(u1/(1-u1))`` (inverse CDF of the GGX slope distribution), uniform azimuth, then
         stretched by ``(ax, ay)`` (Heitz 2014, section 5.3: anisotropic NDFs are stretched ones)."""
-        ax, ay = self._a()
+        ax, ay = self.widths()
         r = safe_sqrt(safe_div(u1, 1.0 - u1))
         phi = 2.0 * PI * u2
         return _stretched_slopes_to_normal(r * jnp.cos(phi), r * jnp.sin(phi), ax, ay)
@@ -186,7 +221,7 @@ class GGX(_Distribution):
         """Visible normals by spherical caps (Dupuy & Benyoub 2023, listing 3): stretch ``w`` to
         the unit-roughness configuration, sample the spherical cap ``z in (-w.z, 1]`` uniformly,
         add ``w``, unstretch. Branch-free."""
-        ax, ay = self._a()
+        ax, ay = self.widths()
         sx, sy, sz, _ = safe_normalize3(ax * wx, ay * wy, wz)
         phi = 2.0 * PI * u1
         z = (1.0 - u2) * (1.0 + sz) - sz
@@ -198,7 +233,7 @@ class GGX(_Distribution):
         return x, y, zz
 
 
-class Beckmann(_Distribution):
+class Beckmann(AbstractDistribution):
     """Beckmann distribution (Beckmann & Spizzichino 1963; Walter et al. 2007, eq. 25; anisotropic
     form Heitz 2014, eq. 84)::
 
@@ -212,25 +247,25 @@ class Beckmann(_Distribution):
     The visible-normal sampler always follows the exact Lambda.
     """
 
-    alpha_x: object = 0.5
-    alpha_y: object = None
+    alpha_x: Scalar = bounded(0.5, lo=0.0, hi=1.0, lo_open=True)
+    alpha_y: Scalar | None = bounded(None, lo=0.0, hi=1.0, lo_open=True)
     lambda_approx: str = eqx.field(static=True, default="exact")
 
     def __check_init__(self):
-        check_param("alpha_x", self.alpha_x, lo=0.0, lo_open=True)
-        if self.alpha_y is not None:
-            check_param("alpha_y", self.alpha_y, lo=0.0, lo_open=True)
+        _check_widths(self.alpha_x, self.alpha_y)
         if self.lambda_approx not in ("exact", "walter"):
             raise ValueError(
                 f"lambda_approx must be 'exact' or 'walter', got {self.lambda_approx!r}"
             )
 
-    def _a(self):
-        ay = self.alpha_x if self.alpha_y is None else self.alpha_y
-        return _alphas(self.alpha_x, ay)
+    def widths(self):
+        return _widths(self.alpha_x, self.alpha_y)
+
+    def is_anisotropic(self) -> bool:
+        return self.alpha_y is not None
 
     def D(self, mx, my, mz):
-        ax, ay = self._a()
+        ax, ay = self.widths()
         pos = mz > 0
         mzs = jnp.where(pos, mz, 1.0)
         t = ((mx / ax) ** 2 + (my / ay) ** 2) / (mzs * mzs)
@@ -240,7 +275,7 @@ class Beckmann(_Distribution):
         return jnp.where(ok, jnp.exp(es) / (PI * ax * ay), 0.0)
 
     def _B_a(self, wx, wy, wz):
-        ax, ay = self._a()
+        ax, ay = self.widths()
         B = (ax * wx) ** 2 + (ay * wy) ** 2
         rsB = safe_rsqrt(B)
         # B = 0 (direction along the normal): a = +inf, Lambda = 0. 1e30 stands in for infinity.
@@ -266,7 +301,7 @@ class Beckmann(_Distribution):
         """Sample ``m ~ D(m)(n.m)``: unit-roughness slope radius ``r = sqrt(-log(1 - u1))``
         (inverse CDF of the Beckmann slope distribution), uniform azimuth, stretched by
         ``(ax, ay)``."""
-        ax, ay = self._a()
+        ax, ay = self.widths()
         r = safe_sqrt(-jnp.log1p(-jnp.minimum(u1, 1.0 - U_EPS)))
         phi = 2.0 * PI * u2
         return _stretched_slopes_to_normal(r * jnp.cos(phi), r * jnp.sin(phi), ax, ay)
@@ -283,7 +318,7 @@ class Beckmann(_Distribution):
         numerical inversion; this is our own safeguarded version). The transverse slope is
         ``erfinv(2 u2 - 1)``; rotate back to the azimuth of ``w``, unstretch.
         """
-        ax, ay = self._a()
+        ax, ay = self.widths()
         sx, sy, sz, _ = safe_normalize3(ax * wx, ay * wy, wz)
         rxy2 = sx * sx + sy * sy
         has_az = rxy2 > 1e-30
@@ -328,7 +363,7 @@ class Beckmann(_Distribution):
         return _stretched_slopes_to_normal(rx, ry, ax, ay)
 
 
-class BlinnPhongNDF(_Distribution):
+class BlinnPhongNDF(AbstractDistribution):
     """Blinn-Phong normal distribution ``D(m) = (n + 2)/(2 pi) (n.m)^n`` (Blinn 1977, normalised
     on projected area as in Walter et al. 2007, eq. 30).
 
@@ -338,7 +373,7 @@ class BlinnPhongNDF(_Distribution):
     (``cos = u^(1/(n+2))``); visible-normal sampling is not available.
     """
 
-    exponent: object = 20.0
+    exponent: Scalar = bounded(20.0, lo=0.0)
     supports_visible: ClassVar[bool] = False
 
     def __check_init__(self):
@@ -351,6 +386,12 @@ class BlinnPhongNDF(_Distribution):
     def _beckmann(self):
         ab = jnp.sqrt(2.0 / (self.exponent + 2.0))
         return Beckmann(ab, ab)
+
+    def widths(self):
+        """The equivalent Beckmann width ``sqrt(2/(n + 2))`` (Walter et al. 2007, section 5.2)
+        in both directions, e.g. 0.0141 for ``n = 1e4``."""
+        a = jnp.maximum(jnp.sqrt(2.0 / (jnp.asarray(self.exponent) + 2.0)), ALPHA_MIN)
+        return a, a
 
     def P(self, wx, wy, wz):
         return self._beckmann().P(wx, wy, wz)
@@ -368,31 +409,33 @@ class BlinnPhongNDF(_Distribution):
 # --------------------------------------------------------------------------- masking-shadowing
 
 
-class _Masking(eqx.Module):
-    """Masking-shadowing term: ``V(dist, wi, wo, h) = G2 / (4 ci co)`` on components."""
+class AbstractMasking(eqx.Module):
+    """Masking-shadowing term: ``V(dist, wi, wo, h) = G2 / (4 ci co)`` on components (abstract;
+    the concrete terms are final)."""
 
-    def V(self, dist, ix, iy, iz, ox, oy, oz, hz, d):  # pragma: no cover - interface
-        raise NotImplementedError
+    @abc.abstractmethod
+    def V(self, dist: AbstractDistribution, ix, iy, iz, ox, oy, oz, hz, d):
+        """``G2 / (4 (n.wi)(n.wo))`` with ``hz = n.h`` and ``d = wo.h`` (sanitised inputs)."""
 
     def G2(self, dist, ix, iy, iz, ox, oy, oz, hz, d):
         return 4.0 * iz * oz * self.V(dist, ix, iy, iz, ox, oy, oz, hz, d)
 
 
-class SmithSeparable(_Masking):
+class SmithSeparable(AbstractMasking):
     """Uncorrelated Smith ``G2 = G1(wi) G1(wo)`` (Smith 1967; Walter et al. 2007, eq. 23)."""
 
     def V(self, dist, ix, iy, iz, ox, oy, oz, hz, d):
         return 1.0 / ((iz + dist.P(ix, iy, iz)) * (oz + dist.P(ox, oy, oz)))
 
 
-class SmithHeightCorrelated(_Masking):
+class SmithHeightCorrelated(AbstractMasking):
     """Height-correlated Smith ``G2 = 1/(1 + Lambda(wi) + Lambda(wo))`` (Heitz 2014, eq. 99)."""
 
     def V(self, dist, ix, iy, iz, ox, oy, oz, hz, d):
         return 0.5 / (oz * dist.P(ix, iy, iz) + iz * dist.P(ox, oy, oz))
 
 
-class VCavity(_Masking):
+class VCavity(AbstractMasking):
     """V-groove (V-cavity) masking-shadowing of Torrance & Sparrow 1967, in Blinn's 1977 vector
     form as used by Cook & Torrance 1982::
 

@@ -28,6 +28,8 @@ Epsilons (each named, each with its reason):
 
 from __future__ import annotations
 
+import math
+
 import jax
 import jax.numpy as jnp
 
@@ -35,6 +37,12 @@ SQRT_EPS = 1e-30
 NORM_EPS = 1e-24
 COS_EPS = 0.0
 ALPHA_MIN = 1e-4
+
+#: ``1/pi``: Lambert's ``rho/pi`` and the cosine-hemisphere density ``cos/pi`` (defined once here).
+INV_PI = 1.0 / math.pi
+#: ``1/(2 pi)``: the power-cosine density ``(n+1)/(2 pi) cos^n``.
+INV_TWO_PI = 0.5 / math.pi
+TWO_PI = 2.0 * math.pi
 
 
 def safe_sqrt(x, eps: float = SQRT_EPS):

@@ -16,10 +16,25 @@ from typing import Any
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import ArrayLike, Float
 
 from brdf_fit.core.validate import ParameterError, check_param, concrete
 
-__all__ = ["Param", "Entry", "UnknownModelError", "Interval", "bounded", "declared_interval"]
+__all__ = [
+    "Param",
+    "Entry",
+    "UnknownModelError",
+    "Interval",
+    "bounded",
+    "declared_interval",
+    "Scalar",
+    "Channels",
+]
+
+#: Annotation of a scalar parameter (geometric ones: widths, exponents, angles).
+Scalar = Float[ArrayLike, ""]
+#: Annotation of a colour parameter: a scalar or a trailing channel axis (RGB or wavelengths).
+Channels = Float[ArrayLike, "*channels"]
 
 
 @dataclass(frozen=True)
@@ -96,11 +111,7 @@ class Param:
         return np.asarray(v, dtype=float)
 
     def interval(self) -> str:
-        lo = "-inf" if self.lo is None else f"{self.lo:g}"
-        hi = "inf" if self.hi is None else f"{self.hi:g}"
-        lb = "(" if (self.lo_open or self.lo is None) else "["
-        rb = ")" if (self.hi_open or self.hi is None) else "]"
-        return f"{lb}{lo}, {hi}{rb}"
+        return str(Interval(self.lo, self.hi, self.lo_open, self.hi_open))
 
     def validate(self, value, entry_name: str):
         v = concrete(value)

@@ -48,3 +48,24 @@ def check_param(
         if np.any(bad):
             rel = "<" if hi_open else "<="
             raise ParameterError(f"{who}parameter {name!r} must be {rel} {hi}, got {v.tolist()}")
+
+
+def check_scalar(name, value, owner: str):
+    """Raise :class:`ParameterError` if a concrete ``value`` is not a scalar (geometric
+    parameters, e.g. widths and exponents, carry no channel axis)."""
+    v = concrete(value)
+    if v is not None and v.dtype != object and v.ndim != 0:
+        raise ParameterError(f"{owner}: parameter {name!r} must be a scalar, got shape {v.shape}")
+
+
+def check_sum_at_most_one(a, b, label: str, owner: str, why: str = "energy conservation"):
+    """Raise :class:`ParameterError` if concrete ``a + b`` exceeds 1 in some channel (``label``
+    names the sum in the message, e.g. ``"rho_d + rho_s"``)."""
+    d, s = concrete(a), concrete(b)
+    if d is not None and s is not None and d.dtype != object and s.dtype != object:
+        tot = np.asarray(d, dtype=float) + np.asarray(s, dtype=float)
+        if np.any(tot > 1.0):
+            raise ParameterError(
+                f"{owner}: {label} must be <= 1 in every channel ({why}), got {label} = "
+                f"{tot.tolist()}"
+            )

@@ -1,7 +1,7 @@
 """BRDF models. Each class holds eval, pdf and sample together; see :mod:`._base` for the
 conventions every model follows."""
 
-from brdf_fit.models._base import AbstractBRDF, BRDFSample, astype, n_channels
+from brdf_fit.models._base import AbstractBRDF, BRDFSample, QuadratureLobe, astype, n_channels
 from brdf_fit.models.lambert import Lambert
 from brdf_fit.models.microfacet_brdf import MicrofacetBRDF
 from brdf_fit.models.mirror import Mirror
@@ -14,6 +14,7 @@ __all__ = [
     "MicrofacetBRDF",
     "Mirror",
     "Mixture",
+    "QuadratureLobe",
     "Scaled",
     "astype",
     "n_channels",

@@ -38,7 +38,7 @@ Units
 from __future__ import annotations
 
 import abc
-from typing import ClassVar
+from typing import Any, ClassVar, NamedTuple
 
 import equinox as eqx
 import jax
@@ -70,11 +70,36 @@ def expand_channels(x, channels: int | None):
     return x if channels is None else x[..., None]
 
 
+class QuadratureLobe(NamedTuple):
+    """What a lobe declares about its shape (:meth:`AbstractBRDF.quadrature_lobe`), so that
+    quadrature (:func:`brdf_fit.verify.albedo.lobe_rule`) and the chi-square grid can follow it.
+
+    ``kind``: ``"mirror"``: a power-cosine lobe about the mirror direction, ``value`` its exponent
+    (:func:`brdf_fit.core.quadrature.mirror_lobe_rule`); ``"half"``: a half-vector lobe of Beckmann
+    width ``value``, or ``(width_x, width_y)`` when anisotropic
+    (:func:`brdf_fit.core.quadrature.halfvector_rule`); ``"none"``: nothing declared."""
+
+    kind: str
+    value: Any = None
+
+
+#: The default of :meth:`AbstractBRDF.quadrature_lobe`: no lobe shape declared.
+NO_QUADRATURE_LOBE = QuadratureLobe("none")
+
+
 class AbstractBRDF(eqx.Module):
     """A BRDF: evaluate, sample and report the sampling density (see the module docstring for the
-    conventions, which every subclass follows). Subclasses are final; compose, don't inherit."""
+    conventions, which every subclass follows). Subclasses are final; compose, don't inherit.
+
+    Besides ``eval``, ``pdf`` and ``sample`` a model may override the declared hooks below (each
+    has a default): :meth:`quadrature_lobe`, :meth:`terms`, :meth:`pdf_terms`,
+    :meth:`is_anisotropic`, :meth:`delta_albedo`, :meth:`selection_hint`, :meth:`channels`.
+    """
 
     is_delta: ClassVar[bool] = False
+    #: whether ``f`` depends on the azimuth of the view (the checks then look at three azimuths);
+    #: read through :meth:`is_anisotropic`
+    anisotropic: ClassVar[bool] = False
 
     @abc.abstractmethod
     def eval(self, wi, wo):
@@ -102,15 +127,37 @@ class AbstractBRDF(eqx.Module):
         c = jnp.maximum(wi[..., 2], 0.0)
         return self.eval(wi, wo) * expand_channels(c, self.channels())
 
+    # ------------------------------------------------------------------ declared hooks
 
-def sample_weight(model: AbstractBRDF, wi, wo, pdf):
-    """``f cos / pdf`` with the failed-sample convention (0 where ``pdf = 0``)."""
-    ok = pdf > 0
-    f = model.eval_cos(wi, wo)
-    ch = model.channels()
-    okc = expand_channels(ok, ch)
-    pdfc = expand_channels(jnp.where(ok, pdf, 1.0), ch)
-    return jnp.where(okc, f / pdfc, 0.0)
+    def quadrature_lobe(self) -> QuadratureLobe:
+        """The lobe shape quadrature should follow (:class:`QuadratureLobe`). Default: none
+        declared (:data:`NO_QUADRATURE_LOBE`); the verification then picks a rule by type."""
+        return NO_QUADRATURE_LOBE
+
+    def terms(self) -> tuple[tuple[Any, AbstractBRDF], ...]:
+        """``((scale_j, lobe_j), ...)`` with ``f = sum_j scale_j f_j``, one level down (a
+        :class:`~brdf_fit.models.Mixture` or :class:`~brdf_fit.models.Scaled` unfolds; a single
+        lobe is ``((1.0, self),)``, the default). Quadrature integrates lobe by lobe with it."""
+        return ((1.0, self),)
+
+    def pdf_terms(self) -> tuple[tuple[Any, AbstractBRDF], ...]:
+        """``((p_j, lobe_j), ...)`` with ``pdf = sum_j p_j pdf_j``, one level down (default
+        ``((1.0, self),)``)."""
+        return ((1.0, self),)
+
+    def is_compound(self) -> bool:
+        """Whether :meth:`terms` unfolds this model into other lobes."""
+        return False
+
+    def is_anisotropic(self) -> bool:
+        """Whether ``f`` depends on the azimuth of the view (default: the class's
+        ``anisotropic``)."""
+        return self.anisotropic
+
+    def delta_albedo(self, wo):
+        """Closed-form directional albedo of a delta lobe (``is_delta``), which quadrature cannot
+        integrate. Default: raises ``TypeError``."""
+        raise TypeError(f"delta lobe {type(self).__name__} has no closed-form albedo(wo)")
 
 
 def astype(model, dtype):

@@ -9,24 +9,19 @@ Beard-Maxwell): with probability ``p_cos`` the cosine hemisphere, otherwise a Be
 
 from __future__ import annotations
 
-import math
-
 import jax.numpy as jnp
 
 from brdf_fit.core.frame import join, split
 from brdf_fit.core.microfacet import Beckmann, reflect_about
-from brdf_fit.core.numerics import safe_div, safe_normalize3
+from brdf_fit.core.numerics import INV_PI, safe_div
 from brdf_fit.core.warp import sample_cosine_hemisphere
-from brdf_fit.models._base import BRDFSample, sample_weight
-
-INV_PI = 1.0 / math.pi
+from brdf_fit.models._base import BRDFSample
+from brdf_fit.models._lobes import finish_sample, half_vector, sanitize
 
 
 def cosine_beckmann_pdf(wi, wo, alpha, p_cos):
     """The mixture density above (0 unless both directions are above the horizon)."""
-    ix, iy, iz = split(wi)
-    ox, oy, oz = split(wo)
-    hx, hy, hz, hok = safe_normalize3(ix + ox, iy + oy, iz + oz)
+    (_, _, iz), (ox, oy, oz), (hx, hy, hz), hok = half_vector(wi, wo)
     dvh = ox * hx + oy * hy + oz * hz
     up = (iz > 0) & (oz > 0)
     lobe_ok = up & hok & (dvh > 0)
@@ -40,12 +35,11 @@ def cosine_beckmann_sample(model, wo, uc, u, alpha, p_cos) -> BRDFSample:
     :func:`cosine_beckmann_pdf` with the same ``alpha`` and ``p_cos``."""
     ox, oy, oz = split(wo)
     ok = oz > 0
-    ox, oy, oz = jnp.where(ok, ox, 0.0), jnp.where(ok, oy, 0.0), jnp.where(ok, oz, 1.0)
+    ox, oy, oz = sanitize(ok, ox, oy, oz)
     mx, my, mz = Beckmann(alpha).sample_normal(u[..., 0], u[..., 1])
     w_lobe = join(*reflect_about(ox, oy, oz, mx, my, mz))
     w_cos = sample_cosine_hemisphere(u)
     use_cos = uc < p_cos
     wi = jnp.where(use_cos[..., None], w_cos, w_lobe)
     ok = ok & (use_cos | ((ox * mx + oy * my + oz * mz) > 0))
-    pdf = jnp.where(ok, model.pdf(wi, wo), 0.0)
-    return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(model, wi, wo, pdf))
+    return finish_sample(model, wi, wo, ok)

@@ -56,16 +56,20 @@ from typing import ClassVar
 import equinox as eqx
 import jax.numpy as jnp
 
-from brdf_fit.core.frame import join, split
-from brdf_fit.core.numerics import pow5, safe_div, safe_normalize3, safe_sqrt
-from brdf_fit.core.params import Entry, Param
-from brdf_fit.core.validate import ParameterError, check_param, concrete
-from brdf_fit.core.warp import sample_cosine_hemisphere
-from brdf_fit.models._base import AbstractBRDF, BRDFSample, sample_weight, expand_channels
+from brdf_fit.core.frame import join
+from brdf_fit.core.numerics import INV_PI, pow5, safe_sqrt
+from brdf_fit.core.params import Channels, Entry, Param, Scalar, bounded
+from brdf_fit.core.validate import check_param, check_scalar
+from brdf_fit.models._base import AbstractBRDF, QuadratureLobe, expand_channels
+from brdf_fit.models._lobes import (
+    half_angles,
+    lobe_probability,
+    max_over_channels,
+    sample_diffuse_or_half,
+)
 
 __all__ = ["AshikhminShirley", "registry_entries"]
 
-INV_PI = 1.0 / math.pi
 #: ``q = 1 - (n.h)^2`` below which ``log1p(-q)/q`` is replaced by its series
 #: ``-(1 + q/2 + q^2/3 + q^3/4 + q^4/5)`` (truncation error q^5/6 = 1.7e-16 at q = 1e-3); above
 #: it the quotient's round-off in the derivative is ~eps/q (1e-13 in float64).
@@ -101,9 +105,7 @@ def _lobe_log(hx, hy, nu, nv):
 
 def _check_exponent(name, value, owner):
     check_param(name, value, lo=0.0, owner=owner)
-    v = concrete(value)
-    if v is not None and v.dtype != object and v.ndim != 0:
-        raise ParameterError(f"{owner}: parameter {name!r} must be a scalar, got shape {v.shape}")
+    check_scalar(name, value, owner)
 
 
 class AshikhminShirley(AbstractBRDF):
@@ -123,10 +125,10 @@ class AshikhminShirley(AbstractBRDF):
     #: the checks look at three view azimuths (brdf_fit.checks._views)
     anisotropic: ClassVar[bool] = True
 
-    Rs: object = 0.05
-    Rd: object = 0.5
-    nu: object = 100.0
-    nv: object = 100.0
+    Rs: Channels = bounded(0.05, lo=0.0, hi=1.0, channels=True)
+    Rd: Channels = bounded(0.5, lo=0.0, hi=1.0, channels=True)
+    nu: Scalar = bounded(100.0, lo=0.0, hi=1e5)
+    nv: Scalar = bounded(100.0, lo=0.0, hi=1e5)
     diffuse: bool = eqx.field(static=True, default=True)
 
     def __check_init__(self):
@@ -144,26 +146,14 @@ class AshikhminShirley(AbstractBRDF):
     def _p_d(self):
         if not self.diffuse:
             return jnp.asarray(0.0)
-        hd = jnp.max(jnp.asarray(self.Rd * (1.0 - jnp.asarray(self.Rs))))
-        hs = jnp.max(jnp.asarray(self.Rs))
-        tot = hd + hs
-        return jnp.where(tot > 0, safe_div(hd, tot), 1.0)
+        hd = max_over_channels(self.Rd * (1.0 - jnp.asarray(self.Rs)))
+        return lobe_probability(hd, max_over_channels(self.Rs))
 
     @staticmethod
     def _geometry(wi, wo):
-        """Sanitised half-vector quantities: ``(ok, hx, hy, d, cl, cv)``; where ``ok`` is False
-        (a direction at or below the horizon, or ``wi = -wo``) every value is that of
-        ``wi = wo = n``, so no formula sees a singular input."""
-        ix, iy, iz = split(wi)
-        ox, oy, oz = split(wo)
-        hx, hy, hz, hok = safe_normalize3(ix + ox, iy + oy, iz + oz)
-        d = ix * hx + iy * hy + iz * hz
-        ok = (iz > 0) & (oz > 0) & hok & (d > 0) & (hz > 0)
-        hx = jnp.where(ok, hx, 0.0)
-        hy = jnp.where(ok, hy, 0.0)
-        d = jnp.where(ok, d, 1.0)
-        cl = jnp.where(ok, iz, 1.0)
-        cv = jnp.where(ok, oz, 1.0)
+        """Sanitised half-vector quantities ``(ok, hx, hy, d, cl, cv)``
+        (:func:`~brdf_fit.models._lobes.half_angles`; ``d = wi.h``)."""
+        ok, hx, hy, _, d, cl, cv = half_angles(wi, wo)
         return ok, hx, hy, d, cl, cv
 
     def _spec_hpdf(self, hx, hy):
@@ -217,34 +207,21 @@ class AshikhminShirley(AbstractBRDF):
         return join(r * cphi, r * sphi, z)
 
     def sample(self, wo, uc, u):
-        ok_o = wo[..., 2] > 0
-        n = jnp.zeros_like(wo).at[..., 2].set(1.0)
-        wos = jnp.where(ok_o[..., None], wo, n)
-        h = self._sample_h(u)
-        d = jnp.sum(wos * h, axis=-1, keepdims=True)
-        ws = 2.0 * d * h - wos
-        x, y, z, _ = safe_normalize3(ws[..., 0], ws[..., 1], ws[..., 2])
-        ws = join(x, y, z)
-        if self.diffuse:
-            wd = sample_cosine_hemisphere(u)
-            wi = jnp.where((uc < self._p_d())[..., None], wd, ws)
-        else:
-            wi = ws
-        pdf = jnp.where(ok_o, self.pdf(wi, wo), 0.0)
-        return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(self, wi, wo, pdf))
+        p_d = self._p_d() if self.diffuse else None
+        return sample_diffuse_or_half(self, wo, uc, u, self._sample_h(u), p_d)
 
-    def quadrature_lobe(self):
+    def quadrature_lobe(self) -> QuadratureLobe:
         """Quadrature hint (:func:`brdf_fit.verify.albedo.lobe_rule`): a half-vector lobe of
         Beckmann widths ``(sqrt(2/(nu+2)), sqrt(2/(nv+2)))`` (see the module docstring)."""
         ax = jnp.sqrt(2.0 / (jnp.asarray(self.nu) + 2.0))
         ay = jnp.sqrt(2.0 / (jnp.asarray(self.nv) + 2.0))
-        return "half", (ax, ay)
+        return QuadratureLobe("half", (ax, ay))
 
     def selection_hint(self):
-        hs = jnp.max(jnp.asarray(self.Rs))
+        hs = max_over_channels(self.Rs)
         if not self.diffuse:
             return hs
-        return hs + jnp.max(jnp.asarray(self.Rd * (1.0 - jnp.asarray(self.Rs))))
+        return hs + max_over_channels(self.Rd * (1.0 - jnp.asarray(self.Rs)))
 
 
 # ----------------------------------------------------------------------------- registry entries

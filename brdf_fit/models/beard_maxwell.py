@@ -68,17 +68,16 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from brdf_fit.core.frame import split
 from brdf_fit.core.fresnel import conductor, f0_from_ior
-from brdf_fit.core.numerics import safe_div, safe_sqrt
-from brdf_fit.core.params import Entry, Param
-from brdf_fit.core.validate import ParameterError, check_param, concrete
-from brdf_fit.models._base import AbstractBRDF, expand_channels
+from brdf_fit.core.numerics import INV_PI, safe_div, safe_sqrt
+from brdf_fit.core.params import Channels, Entry, Param, Scalar, bounded
+from brdf_fit.core.validate import ParameterError, check_param, check_scalar
+from brdf_fit.models._base import AbstractBRDF, QuadratureLobe, expand_channels
 from brdf_fit.models._fallback import cosine_beckmann_pdf, cosine_beckmann_sample
+from brdf_fit.models._lobes import sanitize_pair, upper
 
 __all__ = ["BeardMaxwell", "calibrate_b", "registry_entries"]
 
-INV_PI = 1.0 / math.pi
 _FS_FORMS = ("gaussian", "lorentzian")
 #: clamp of the sampling lobe's Beckmann width
 SAMPLER_ALPHA_MIN = 1e-3
@@ -104,14 +103,14 @@ class BeardMaxwell(AbstractBRDF):
     ``rho_d`` and ``rho_v`` (1/sr) may carry channels; ``b``, ``sigma`` (radians), ``tau``
     (radians), ``omega`` (radians) are scalars."""
 
-    b: object = 2.0
-    sigma: object = 0.1
-    tau: object = 0.15
-    omega: object = 0.4
-    eta: object = 1.65
-    k: object = 0.0
-    rho_d: object = 0.05
-    rho_v: object = 0.01
+    b: Scalar = bounded(2.0, lo=0.0)
+    sigma: Scalar = bounded(0.1, lo=0.0, hi=0.5 * math.pi, lo_open=True)
+    tau: Scalar = bounded(0.15, lo=0.0, lo_open=True)
+    omega: Scalar = bounded(0.4, lo=0.0, lo_open=True)
+    eta: Channels = bounded(1.65, lo=0.0, lo_open=True, channels=True)
+    k: Channels = bounded(0.0, lo=0.0, channels=True)
+    rho_d: Channels = bounded(0.05, lo=0.0, hi=INV_PI, channels=True)
+    rho_v: Channels = bounded(0.01, lo=0.0, hi=0.25 * INV_PI, channels=True)
     fs_form: str = eqx.field(static=True, default="gaussian")
 
     def __check_init__(self):
@@ -123,10 +122,7 @@ class BeardMaxwell(AbstractBRDF):
         for name in ("sigma", "tau", "omega"):
             check_param(name, getattr(self, name), lo=0.0, lo_open=True, owner=owner)
         for name in ("b", "sigma", "tau", "omega"):
-            v = concrete(getattr(self, name))
-            if v is not None and v.dtype != object and v.ndim != 0:
-                raise ParameterError(f"{owner}: parameter {name!r} must be a scalar, got shape "
-                                     f"{v.shape}")
+            check_scalar(name, getattr(self, name), owner)
         check_param("eta", self.eta, lo=0.0, lo_open=True, owner=owner)
         check_param("k", self.k, lo=0.0, owner=owner)
         check_param("rho_d", self.rho_d, lo=0.0, owner=owner)
@@ -153,13 +149,7 @@ class BeardMaxwell(AbstractBRDF):
 
     def first_surface(self, wi, wo):
         """The first-surface term alone (1/sr), 0 below the horizon."""
-        ix, iy, iz = split(wi)
-        ox, oy, oz = split(wo)
-        valid = (iz > 0) & (oz > 0)
-        ix, iy, iz = jnp.where(valid, ix, 0.0), jnp.where(valid, iy, 0.0), jnp.where(valid, iz,
-                                                                                    1.0)
-        ox, oy, oz = jnp.where(valid, ox, 0.0), jnp.where(valid, oy, 0.0), jnp.where(valid, oz,
-                                                                                    1.0)
+        valid, (ix, iy, iz), (ox, oy, oz) = sanitize_pair(wi, wo)
         Hx, Hy, Hz = ix + ox, iy + oy, iz + oz
         Hn = _norm_zero_grad(Hx, Hy, Hz)  # 2 cos(beta) > 0 on valid lanes
         Dn = _norm_zero_grad(ix - ox, iy - oy, iz - oz)  # 2 sin(beta)
@@ -175,7 +165,7 @@ class BeardMaxwell(AbstractBRDF):
 
     def eval(self, wi, wo):
         iz, oz = wi[..., 2], wo[..., 2]
-        valid = (iz > 0) & (oz > 0)
+        valid = upper(wi, wo)
         ch = self.channels()
         s = jnp.where(valid, iz + oz, 1.0)
         vol = self.rho_d + 2.0 * self.rho_v * expand_channels(1.0 / s, ch)
@@ -220,10 +210,10 @@ class BeardMaxwell(AbstractBRDF):
     def sample(self, wo, uc, u):
         return cosine_beckmann_sample(self, wo, uc, u, self._sampler_alpha(), self._p_cos())
 
-    def quadrature_lobe(self):
+    def quadrature_lobe(self) -> QuadratureLobe:
         """Quadrature hint (:func:`brdf_fit.verify.albedo.lobe_rule`): a half-vector lobe of the
         first-surface width ``sigma``."""
-        return "half", self._sampler_alpha()
+        return QuadratureLobe("half", self._sampler_alpha())
 
     def selection_hint(self):
         return (math.pi * jnp.max(jnp.asarray(self.rho_d))

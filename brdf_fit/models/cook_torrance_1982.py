@@ -40,25 +40,21 @@ G (:func:`brdf_fit.microfacet.vcavity_sample_visible`); the pdf is the mixture o
 
 from __future__ import annotations
 
-import math
-
 import jax.numpy as jnp
 
-from brdf_fit.core.frame import split
 from brdf_fit.core.fresnel import DielectricFresnel, dielectric, f0_from_ior
 from brdf_fit.core.microfacet import EXP_UNDERFLOW, Beckmann, VCavity
-from brdf_fit.core.numerics import ALPHA_MIN, safe_div, safe_normalize3
-from brdf_fit.core.params import Entry, Param
+from brdf_fit.core.numerics import ALPHA_MIN, INV_PI, safe_div
+from brdf_fit.core.params import Channels, Entry, Param, Scalar, bounded
 from brdf_fit.core.validate import check_param
-from brdf_fit.models._base import AbstractBRDF, BRDFSample, sample_weight, expand_channels
+from brdf_fit.models._base import AbstractBRDF, QuadratureLobe, expand_channels
+from brdf_fit.models._lobes import finish_sample, half_geometry
 from brdf_fit.models.lambert import Lambert
 from brdf_fit.models.microfacet_brdf import MicrofacetBRDF
 from brdf_fit.models.mixture import Mixture
 
 __all__ = ["CookTorrance1982Specular", "cook_torrance_1982", "beckmann_ct1982",
            "registry_entries"]
-
-INV_PI = 1.0 / math.pi
 
 
 def beckmann_ct1982(hx, hy, hz, m):
@@ -80,9 +76,9 @@ class CookTorrance1982Specular(AbstractBRDF):
     other microfacet models), ``eta`` > 0 (may carry channels).
     """
 
-    s: object = 1.0
-    m: object = 0.3
-    eta: object = 1.5
+    s: Scalar = bounded(1.0, lo=0.0, hi=1.0)
+    m: Scalar = bounded(0.3, lo=0.0, hi=1.0, lo_open=True)
+    eta: Channels = bounded(1.5, lo=0.0, lo_open=True, channels=True)
 
     def __check_init__(self):
         owner = "CookTorrance1982Specular"
@@ -99,18 +95,8 @@ class CookTorrance1982Specular(AbstractBRDF):
                               fresnel=DielectricFresnel(self.eta))
 
     def eval(self, wi, wo):
-        ix, iy, iz = split(wi)
-        ox, oy, oz = split(wo)
-        hx, hy, hz, hok = safe_normalize3(ix + ox, iy + oy, iz + oz)
-        valid = (iz > 0) & (oz > 0) & hok
-        # sanitise (normal direction on invalid lanes), then mask
-        iz = jnp.where(valid, iz, 1.0)
-        oz = jnp.where(valid, oz, 1.0)
-        hx = jnp.where(valid, hx, 0.0)
-        hy = jnp.where(valid, hy, 0.0)
-        hz = jnp.where(valid, hz, 1.0)
-        ox_, oy_ = jnp.where(valid, ox, 0.0), jnp.where(valid, oy, 0.0)
-        c = jnp.where(valid, ox_ * hx + oy_ * hy + oz * hz, 1.0)  # v.h
+        # sanitised (normal direction on invalid lanes), then masked; c = v.h
+        valid, (_, _, iz), (_, _, oz), (hx, hy, hz), c = half_geometry(wi, wo)
         D = beckmann_ct1982(hx, hy, hz, self._m())
         # G/((n.l)(n.v)) = min(1/((n.l)(n.v)), 2 (n.h)/((n.l)(v.h)), 2 (n.h)/((n.v)(v.h))):
         # the same minimum with each term divided by (n.l)(n.v), so no G ~ 0 is multiplied by a
@@ -126,13 +112,11 @@ class CookTorrance1982Specular(AbstractBRDF):
         return self._sampler().pdf(wi, wo)
 
     def sample(self, wo, uc, u):
-        wi = self._sampler().sample(wo, uc, u).wi
-        pdf = self.pdf(wi, wo)
-        return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(self, wi, wo, pdf))
+        return finish_sample(self, self._sampler().sample(wo, uc, u).wi, wo)
 
-    def quadrature_lobe(self):
+    def quadrature_lobe(self) -> QuadratureLobe:
         """Quadrature hint: a half-vector lobe of Beckmann width ``m``."""
-        return "half", self._m()
+        return QuadratureLobe("half", self._m())
 
     def selection_hint(self):
         # the lobe's albedo is ~ 4 s F0 at normal view (4x the modern form's)

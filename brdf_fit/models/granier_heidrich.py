@@ -99,17 +99,15 @@ import math
 import equinox as eqx
 import jax.numpy as jnp
 
-from brdf_fit.core.frame import split
 from brdf_fit.core.fresnel import dielectric
-from brdf_fit.core.numerics import safe_pow, safe_sqrt
-from brdf_fit.core.params import Entry, Param
-from brdf_fit.core.validate import ParameterError, check_param, concrete
-from brdf_fit.core.warp import sample_cosine_hemisphere
-from brdf_fit.models._base import AbstractBRDF, BRDFSample, sample_weight
+from brdf_fit.core.numerics import INV_PI, safe_pow, safe_sqrt
+from brdf_fit.core.params import Channels, Entry, Param, Scalar, bounded
+from brdf_fit.core.validate import ParameterError, check_param, check_scalar, concrete
+from brdf_fit.models._base import AbstractBRDF, QuadratureLobe
+from brdf_fit.models._lobes import cosine_pdf, max_over_channels, sample_cosine, sanitize_pair
 
 __all__ = ["GranierHeidrich", "WAVELENGTHS_NM", "registry_entries"]
 
-INV_PI = 1.0 / math.pi
 #: The shader's RGB wavelengths in nm ("use [645 525 445]").
 WAVELENGTHS_NM = (645.0, 525.0, 445.0)
 #: The shader's average transmission constant ``T_d = (80/21) eta/(eta + 1)^2``.
@@ -123,12 +121,6 @@ _STUART_2002 = (
     "P. Stuart, granier.sl (RenderMan shader, 2002; shrimp rsl_shrimp_shadingmodels.h "
     "LocIllumGranier)"
 )
-
-
-def _scalar(name, value, owner):
-    v = concrete(value)
-    if v is not None and v.dtype != object and v.ndim != 0:
-        raise ParameterError(f"{owner}: parameter {name!r} must be a scalar, got shape {v.shape}")
 
 
 def _channels_ok(name, value, n, owner):
@@ -164,13 +156,13 @@ class GranierHeidrich(AbstractBRDF):
     refracted directions) are scalars. Outputs always carry ``len(wavelengths_nm)`` channels.
     """
 
-    kd: object = 0.7
-    ks: object = 1.0
-    eta: object = (1.4, 1.45, 1.6)
-    d: object = 70.0
-    e0: object = 90.0
-    e1: object = 170.0
-    wavelengths_nm: tuple = eqx.field(static=True, default=WAVELENGTHS_NM)
+    kd: Channels = bounded(0.7, lo=0.0, hi=1.0, channels=True)
+    ks: Channels = bounded(1.0, lo=0.0, hi=1.0, channels=True)
+    eta: Channels = bounded((1.4, 1.45, 1.6), lo=1.0, hi=3.0, channels=True)
+    d: Scalar = bounded(70.0, lo=0.0, hi=1000.0)
+    e0: Scalar = bounded(90.0, lo=0.0, hi=1e4)
+    e1: Scalar = bounded(170.0, lo=0.0, hi=1e4)
+    wavelengths_nm: tuple[float, ...] = eqx.field(static=True, default=WAVELENGTHS_NM)
 
     def __check_init__(self):
         owner = "GranierHeidrich"
@@ -182,7 +174,7 @@ class GranierHeidrich(AbstractBRDF):
         check_param("e0", self.e0, lo=0.0, owner=owner)
         check_param("e1", self.e1, lo=0.0, owner=owner)
         for name in ("d", "e0", "e1"):
-            _scalar(name, getattr(self, name), owner)
+            check_scalar(name, getattr(self, name), owner)
         for name in ("kd", "ks", "eta"):
             _channels_ok(name, getattr(self, name), n, owner)
         if n < 1 or any(not (lam > 0) for lam in self.wavelengths_nm):
@@ -194,11 +186,7 @@ class GranierHeidrich(AbstractBRDF):
 
     def _specular(self, wi, wo):
         """Validity mask and ``S_c`` of shape ``batch + (C,)`` (sanitised lanes)."""
-        ix, iy, iz = split(wi)
-        ox, oy, oz = split(wo)
-        ok = (iz > 0) & (oz > 0)
-        ixs, iys, izs = (jnp.where(ok, ix, 0.0), jnp.where(ok, iy, 0.0), jnp.where(ok, iz, 1.0))
-        oxs, oys, ozs = (jnp.where(ok, ox, 0.0), jnp.where(ok, oy, 0.0), jnp.where(ok, oz, 1.0))
+        ok, (ixs, iys, izs), (oxs, oys, ozs) = sanitize_pair(wi, wo)
         cl, cv = izs[..., None], ozs[..., None]
         tan_dot = (ixs * oxs + iys * oys)[..., None]  # wi.wo - cl cv
         eta = jnp.asarray(self.eta)
@@ -221,21 +209,18 @@ class GranierHeidrich(AbstractBRDF):
         return jnp.where(ok[..., None], val, 0.0)
 
     def pdf(self, wi, wo):
-        ok = (wi[..., 2] > 0) & (wo[..., 2] > 0)
-        return jnp.where(ok, wi[..., 2] * INV_PI, 0.0)
+        return cosine_pdf(wi, wo)
 
     def sample(self, wo, uc, u):
-        wi = sample_cosine_hemisphere(u)
-        pdf = self.pdf(wi, wo)
-        return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(self, wi, wo, pdf))
+        return sample_cosine(self, wo, u)
 
-    def quadrature_lobe(self):
+    def quadrature_lobe(self) -> QuadratureLobe:
         """Quadrature hint (:func:`brdf_fit.verify.albedo.lobe_rule`): power-cosine lobes about the
         mirror direction; the wider one (smaller exponent) sets the grading."""
-        return "mirror", jnp.minimum(jnp.asarray(self.e0), jnp.asarray(self.e1))
+        return QuadratureLobe("mirror", jnp.minimum(jnp.asarray(self.e0), jnp.asarray(self.e1)))
 
     def selection_hint(self):
-        return jnp.max(jnp.asarray(self.kd)) + jnp.max(jnp.asarray(self.ks))
+        return max_over_channels(self.kd) + max_over_channels(self.ks)
 
 
 # ----------------------------------------------------------------------------- registry entries

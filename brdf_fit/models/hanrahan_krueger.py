@@ -85,14 +85,13 @@ import jax.numpy as jnp
 from brdf_fit.core.frame import split
 from brdf_fit.core.fresnel import dielectric
 from brdf_fit.core.numerics import safe_sqrt
-from brdf_fit.core.params import Entry, Param
-from brdf_fit.core.validate import ParameterError, check_param, concrete
-from brdf_fit.core.warp import sample_cosine_hemisphere
-from brdf_fit.models._base import AbstractBRDF, BRDFSample, sample_weight, expand_channels
+from brdf_fit.core.params import Channels, Entry, Param, Scalar, bounded
+from brdf_fit.core.validate import check_param, check_scalar
+from brdf_fit.models._base import AbstractBRDF, expand_channels
+from brdf_fit.models._lobes import cosine_pdf, max_over_channels, sample_cosine
 
 __all__ = ["HanrahanKrueger", "henyey_greenstein", "registry_entries"]
 
-INV_PI = 1.0 / math.pi
 INV_FOUR_PI = 0.25 / math.pi
 
 _HK_1993 = (
@@ -114,12 +113,6 @@ def henyey_greenstein(cos_psi, g):
     return (1.0 - g * g) * INV_FOUR_PI / (base * jnp.sqrt(base))
 
 
-def _scalar(name, value, owner):
-    v = concrete(value)
-    if v is not None and v.dtype != object and v.ndim != 0:
-        raise ParameterError(f"{owner}: parameter {name!r} must be a scalar, got shape {v.shape}")
-
-
 class HanrahanKrueger(AbstractBRDF):
     """Single-scattering BRDF of a Henyey-Greenstein layer under a smooth dielectric boundary
     (Hanrahan & Krueger 1993, section 4; see the module docstring for the formula, the
@@ -131,10 +124,10 @@ class HanrahanKrueger(AbstractBRDF):
     energy conserving for ``eta > 1``).
     """
 
-    albedo: object = 0.8
-    tau: object = 1.0
-    g: object = 0.3
-    eta: object = 1.4
+    albedo: Channels = bounded(0.8, lo=0.0, hi=1.0, channels=True)
+    tau: Channels = bounded(1.0, lo=0.0, channels=True)
+    g: Scalar = bounded(0.3, lo=-0.99, hi=0.99)
+    eta: Scalar = bounded(1.4, lo=0.0, lo_open=True)
     solid_angle_factor: bool = eqx.field(static=True, default=True)
 
     def __check_init__(self):
@@ -143,8 +136,8 @@ class HanrahanKrueger(AbstractBRDF):
         check_param("tau", self.tau, lo=0.0, owner=owner)
         check_param("g", self.g, lo=-1.0, hi=1.0, lo_open=True, hi_open=True, owner=owner)
         check_param("eta", self.eta, lo=0.0, lo_open=True, owner=owner)
-        _scalar("g", self.g, owner)
-        _scalar("eta", self.eta, owner)
+        check_scalar("g", self.g, owner)
+        check_scalar("eta", self.eta, owner)
 
     def _geometry(self, wi, wo):
         """Validity mask, refracted cosines, Fresnel transmittances and ``cos psi`` (sanitised)."""
@@ -181,16 +174,13 @@ class HanrahanKrueger(AbstractBRDF):
         return jnp.where(expand_channels(ok, ch), val, 0.0)
 
     def pdf(self, wi, wo):
-        ok = (wi[..., 2] > 0) & (wo[..., 2] > 0)
-        return jnp.where(ok, wi[..., 2] * INV_PI, 0.0)
+        return cosine_pdf(wi, wo)
 
     def sample(self, wo, uc, u):
-        wi = sample_cosine_hemisphere(u)
-        pdf = self.pdf(wi, wo)
-        return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(self, wi, wo, pdf))
+        return sample_cosine(self, wo, u)
 
     def selection_hint(self):
-        return jnp.max(jnp.asarray(self.albedo))
+        return max_over_channels(self.albedo)
 
 
 # ----------------------------------------------------------------------------- registry entries

@@ -113,15 +113,15 @@ from jax.scipy.special import erf, erfc, gammaln
 
 from brdf_fit.core.frame import split
 from brdf_fit.core.fresnel import conductor, f0_from_ior
-from brdf_fit.core.numerics import safe_div, safe_log, safe_sqrt
-from brdf_fit.core.params import Entry, Param
-from brdf_fit.core.validate import ParameterError, check_param, concrete
-from brdf_fit.models._base import AbstractBRDF, expand_channels
+from brdf_fit.core.numerics import INV_PI, safe_div, safe_log, safe_sqrt
+from brdf_fit.core.params import Channels, Entry, Param, Scalar, bounded
+from brdf_fit.core.validate import ParameterError, check_param, check_scalar
+from brdf_fit.models._base import AbstractBRDF, QuadratureLobe, expand_channels
 from brdf_fit.models._fallback import cosine_beckmann_pdf, cosine_beckmann_sample
+from brdf_fit.models._lobes import max_over_channels, sanitize, sanitize_pair, upper
 
 __all__ = ["HTSG", "registry_entries", "N_TERMS", "G_SERIES"]
 
-INV_PI = 1.0 / math.pi
 SQRT_PI = math.sqrt(math.pi)
 #: number of series nodes (fixed trip count), see the module docstring for the error bound
 N_TERMS = 128
@@ -205,21 +205,18 @@ class HTSG(AbstractBRDF):
     carry channels; ``wavelength`` is a static float or tuple with one wavelength per channel.
     """
 
-    sigma0: object = 0.18
-    tau: object = 3.0
-    eta: object = 1.6
-    k: object = 0.2
-    albedo: object = 0.0
-    wavelength: tuple = eqx.field(static=True, default=(0.55,))
+    sigma0: Scalar = bounded(0.18, lo=0.0, lo_open=True)
+    tau: Scalar = bounded(3.0, lo=0.0, lo_open=True)
+    eta: Channels = bounded(1.6, lo=0.0, lo_open=True, channels=True)
+    k: Channels = bounded(0.2, lo=0.0, channels=True)
+    albedo: Channels = bounded(0.0, lo=0.0, hi=1.0, channels=True)
+    wavelength: float | tuple[float, ...] = eqx.field(static=True, default=(0.55,))
 
     def __check_init__(self):
         owner = "HTSG"
         for name in ("sigma0", "tau"):
             check_param(name, getattr(self, name), lo=0.0, lo_open=True, owner=owner)
-            v = concrete(getattr(self, name))
-            if v is not None and v.dtype != object and v.ndim != 0:
-                raise ParameterError(f"{owner}: parameter {name!r} must be a scalar, got shape "
-                                     f"{v.shape}")
+            check_scalar(name, getattr(self, name), owner)
         check_param("eta", self.eta, lo=0.0, lo_open=True, owner=owner)
         check_param("k", self.k, lo=0.0, owner=owner)
         check_param("albedo", self.albedo, lo=0.0, hi=1.0, owner=owner)
@@ -258,13 +255,7 @@ class HTSG(AbstractBRDF):
 
     def directional_diffuse(self, wi, wo):
         """``rho_dd`` alone (1/sr; eqs. 76-84), 0 below the horizon."""
-        ix, iy, iz = split(wi)
-        ox, oy, oz = split(wo)
-        valid = (iz > 0) & (oz > 0)
-        ix, iy, iz = jnp.where(valid, ix, 0.0), jnp.where(valid, iy, 0.0), jnp.where(valid, iz,
-                                                                                    1.0)
-        ox, oy, oz = jnp.where(valid, ox, 0.0), jnp.where(valid, oy, 0.0), jnp.where(valid, oz,
-                                                                                    1.0)
+        valid, (ix, iy, iz), (ox, oy, oz) = sanitize_pair(wi, wo)
         ch = self.channels()
         E = lambda x: expand_channels(x, ch)  # noqa: E731
         sigma0, tau = self.sigma0, self.tau
@@ -290,7 +281,7 @@ class HTSG(AbstractBRDF):
 
     def eval(self, wi, wo):
         ch = self.channels()
-        valid = (wi[..., 2] > 0) & (wo[..., 2] > 0)
+        valid = upper(wi, wo)
         ud = self.albedo * INV_PI
         val = self.directional_diffuse(wi, wo) + ud
         return jnp.where(expand_channels(valid, ch), val, 0.0)
@@ -300,8 +291,7 @@ class HTSG(AbstractBRDF):
         ``|F(cv)|^2 e^-g S(v)^2`` with ``g = (4 pi sigma cv/lam)^2``), not part of :meth:`eval`."""
         ox, oy, oz = split(wo)
         valid = oz > 0
-        ox, oy, oz = jnp.where(valid, ox, 0.0), jnp.where(valid, oy, 0.0), jnp.where(valid, oz,
-                                                                                    1.0)
+        ox, oy, oz = sanitize(valid, ox, oy, oz)
         ch = self.channels()
         E = lambda x: expand_channels(x, ch)  # noqa: E731
         S_hat, K = _shadow_parts(ox, oy, oz, self.tau, self.sigma0)
@@ -318,13 +308,13 @@ class HTSG(AbstractBRDF):
     def sample(self, wo, uc, u):
         return cosine_beckmann_sample(self, wo, uc, u, self._sampler_alpha(), self._p_cos())
 
-    def quadrature_lobe(self):
+    def quadrature_lobe(self) -> QuadratureLobe:
         """Quadrature hint (:func:`brdf_fit.verify.albedo.lobe_rule`): a half-vector lobe of the
         sampler's Beckmann width (the directional-diffuse lobe's rough-limit width)."""
-        return "half", self._sampler_alpha()
+        return QuadratureLobe("half", self._sampler_alpha())
 
     def selection_hint(self):
-        return jnp.max(jnp.asarray(self.albedo)) + jnp.max(
+        return max_over_channels(self.albedo) + max_over_channels(
             f0_from_ior(jnp.asarray(self.eta), jnp.asarray(self.k)))
 
 

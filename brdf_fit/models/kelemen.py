@@ -47,24 +47,22 @@ specular lobe with probability ``p_s = w_s/(w_s + w_m)``: Beckmann NDF sampling 
 
 from __future__ import annotations
 
-import math
-
 import jax.numpy as jnp
 import numpy as np
 
 from brdf_fit.core.frame import join, split
 from brdf_fit.core.fresnel import schlick
 from brdf_fit.core.microfacet import Beckmann, reflect_about
-from brdf_fit.core.numerics import ALPHA_MIN, pow5, safe_div, safe_normalize3, safe_sqrt
-from brdf_fit.core.params import Entry, Param
+from brdf_fit.core.numerics import ALPHA_MIN, INV_PI, pow5, safe_div, safe_sqrt
+from brdf_fit.core.params import Channels, Entry, Param, Scalar, bounded
 from brdf_fit.core.quadrature import halfvector_rule
 from brdf_fit.core.validate import check_param
 from brdf_fit.core.warp import sample_cosine_hemisphere
-from brdf_fit.models._base import AbstractBRDF, BRDFSample, sample_weight, expand_channels
+from brdf_fit.models._base import AbstractBRDF, QuadratureLobe, expand_channels
+from brdf_fit.models._lobes import finish_sample, half_geometry, half_vector, sanitize
 
 __all__ = ["Kelemen", "registry_entries", "albedo_table", "specular_albedo"]
 
-INV_PI = 1.0 / math.pi
 #: Chebyshev nodes of the albedo table in ``s = sqrt(mu)``.
 TABLE_NODES = 32
 #: Half-vector rule per table node (the library's defaults for Beckmann lobes: 64 x 64).
@@ -115,9 +113,7 @@ def albedo_table(alpha):
     rule = halfvector_rule(wo, a, n_theta=TABLE_N_THETA, n_phi=TABLE_N_PHI, dtype=wdt)
     wi, w = rule.directions, rule.weights  # (K, N, 3), (K, N)
     wo_j = jnp.asarray(wo, dtype=wdt)[:, None, :]
-    ix, iy, iz = split(wi)
-    ox, oy, oz = split(wo_j)
-    hx, hy, hz, _ = safe_normalize3(ix + ox, iy + oy, iz + oz)
+    (_, _, iz), (ox, oy, oz), (hx, hy, hz), _ = half_vector(wi, wo_j)
     c = jnp.clip(ox * hx + oy * hy + oz * hz, jnp.finfo(wdt).tiny, 1.0)
     base = _beckmann(alpha).D(hx, hy, hz) * iz / (4.0 * c * c)
     A = jnp.sum(w * base, axis=-1).astype(out_dt)
@@ -153,9 +149,9 @@ class Kelemen(AbstractBRDF):
     and ``f0`` in [0, 1] may carry channels; ``alpha`` > 0 is the Beckmann RMS slope (clamped at
     ``ALPHA_MIN``)."""
 
-    rho_m: object = 0.5
-    f0: object = 0.04
-    alpha: object = 0.3
+    rho_m: Channels = bounded(0.5, lo=0.0, hi=1.0, channels=True)
+    f0: Channels = bounded(0.04, lo=0.0, hi=1.0, channels=True)
+    alpha: Scalar = bounded(0.3, lo=0.0, hi=1.0, lo_open=True)
 
     def __check_init__(self):
         check_param("rho_m", self.rho_m, lo=0.0, hi=1.0, owner="Kelemen")
@@ -179,17 +175,8 @@ class Kelemen(AbstractBRDF):
 
     @staticmethod
     def _geometry(wi, wo):
-        ix, iy, iz = split(wi)
-        ox, oy, oz = split(wo)
-        hx, hy, hz, hok = safe_normalize3(ix + ox, iy + oy, iz + oz)
-        valid = (iz > 0) & (oz > 0) & hok
-        iz = jnp.where(valid, iz, 1.0)
-        oz = jnp.where(valid, oz, 1.0)
-        hx, hy = jnp.where(valid, hx, 0.0), jnp.where(valid, hy, 0.0)
-        hz = jnp.where(valid, hz, 1.0)
-        ox, oy = jnp.where(valid, ox, 0.0), jnp.where(valid, oy, 0.0)
-        c = jnp.where(valid, ox * hx + oy * hy + oz * hz, 1.0)
-        return valid, iz, oz, (hx, hy, hz), c
+        valid, (_, _, iz), (_, _, oz), h, c = half_geometry(wi, wo)
+        return valid, iz, oz, h, c
 
     def eval(self, wi, wo):
         valid, iz, oz, (hx, hy, hz), c = self._geometry(wi, wo)
@@ -227,20 +214,19 @@ class Kelemen(AbstractBRDF):
     def sample(self, wo, uc, u):
         ox, oy, oz = split(wo)
         ok = oz > 0
-        ox, oy, oz = jnp.where(ok, ox, 0.0), jnp.where(ok, oy, 0.0), jnp.where(ok, oz, 1.0)
+        ox, oy, oz = sanitize(ok, ox, oy, oz)
         A, B, _ = self._coupling()
         p_s = self._p_spec(A, B, oz)
         m = _beckmann(self.alpha).sample_normal(u[..., 0], u[..., 1])
         ws = join(*reflect_about(ox, oy, oz, *m))
         wd = sample_cosine_hemisphere(u)
         wi = jnp.where((uc < p_s)[..., None], ws, wd)
-        pdf = jnp.where(ok, self.pdf(wi, wo), 0.0)
-        return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(self, wi, wo, pdf))
+        return finish_sample(self, wi, wo, ok)
 
-    def quadrature_lobe(self):
+    def quadrature_lobe(self) -> QuadratureLobe:
         """Quadrature hint: a half-vector lobe of Beckmann width ``alpha`` (the matte term is
         smooth, which the half-vector rule integrates to ~1e-7)."""
-        return "half", jnp.maximum(jnp.asarray(self.alpha), ALPHA_MIN)
+        return QuadratureLobe("half", jnp.maximum(jnp.asarray(self.alpha), ALPHA_MIN))
 
     def selection_hint(self):
         return jnp.max(jnp.asarray(self.rho_m)) + jnp.max(jnp.asarray(self.f0))

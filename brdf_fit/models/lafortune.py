@@ -60,29 +60,28 @@ from typing import ClassVar
 import equinox as eqx
 import jax.numpy as jnp
 
-from brdf_fit.core.frame import frame_from_normal, join, split, to_world
-from brdf_fit.core.numerics import NORM_EPS, safe_log, safe_normalize3, safe_sqrt
-from brdf_fit.core.params import Entry, Param
-from brdf_fit.core.validate import ParameterError, check_param, concrete
+from brdf_fit.core.frame import join, split
+from brdf_fit.core.numerics import INV_PI, INV_TWO_PI, NORM_EPS, safe_log, safe_normalize3
+from brdf_fit.core.params import Channels, Entry, Param, Scalar, bounded
+from brdf_fit.core.validate import ParameterError, check_param, check_scalar
 from brdf_fit.core.warp import sample_cosine_hemisphere
-from brdf_fit.models._base import AbstractBRDF, BRDFSample, sample_weight, expand_channels
+from brdf_fit.models._base import AbstractBRDF, expand_channels
+from brdf_fit.models._lobes import (
+    finish_sample,
+    sample_power_cosine_about,
+    sanitize_direction,
+    sanitize_wo,
+    upper,
+)
 
 __all__ = ["CosineLobe", "Lafortune", "registry_entries"]
 
-INV_PI = 1.0 / math.pi
-INV_TWO_PI = 0.5 / math.pi
 LOG_TWO_PI = math.log(2.0 * math.pi)
 
 _LFTG_1997 = (
     "E. P. F. Lafortune, S.-C. Foo, K. E. Torrance, D. P. Greenberg, Non-linear approximation of "
     "reflectance functions, SIGGRAPH 97, pp. 117-126, 1997"
 )
-
-
-def _scalar(name, value, owner):
-    v = concrete(value)
-    if v is not None and v.dtype != object and v.ndim != 0:
-        raise ParameterError(f"{owner}: parameter {name!r} must be a scalar, got shape {v.shape}")
 
 
 #: Bases of the lobe powers at or below this count as 0 (value and gradient 0): ``d/dx x^n =
@@ -110,25 +109,32 @@ def _cmax(x):
     return x if isinstance(x, int | float) else jnp.max(jnp.asarray(x))
 
 
+#: Coefficient bound of the registry entry: |C| <= 1.1 covers every energy-normalised Phong-like
+#: lobe (``Cz = ((n+2)/(2 pi))^(1/n)`` peaks at 1.068 near n = 15) and the published light-blue
+#: house-paint fit (|C| <= 1.032, models.md 4.21); with n <= N_MAX, |C|^n <= 1.1^500 = 5e20.
+C_MAX = 1.1
+N_MAX = 500.0
+
+
 class CosineLobe(eqx.Module):
     """One generalised cosine lobe ``rho_s max(0, Cx wi_x wo_x + Cy wi_y wo_y + Cz wi_z wo_z)^n``
     (a part of :class:`Lafortune`, not a BRDF on its own). ``cx, cy, cz`` (signed) and the
     exponent are scalars (they fix the lobe's geometry, which the sampler needs); ``rho_s`` may
     carry channels."""
 
-    cx: object = -1.0
-    cy: object = -1.0
-    cz: object = 1.0
-    exponent: object = 10.0
-    rho_s: object = 1.0
+    cx: Scalar = bounded(-1.0, lo=-C_MAX, hi=C_MAX)
+    cy: Scalar = bounded(-1.0, lo=-C_MAX, hi=C_MAX)
+    cz: Scalar = bounded(1.0, lo=-C_MAX, hi=C_MAX)
+    exponent: Scalar = bounded(10.0, lo=0.0, hi=N_MAX)
+    rho_s: Channels = bounded(1.0, lo=0.0, channels=True)
 
     def __check_init__(self):
         owner = "CosineLobe"
         for name in ("cx", "cy", "cz"):
             check_param(name, getattr(self, name), owner=owner)
-            _scalar(name, getattr(self, name), owner)
+            check_scalar(name, getattr(self, name), owner)
         check_param("exponent", self.exponent, lo=0.0, owner=owner)
-        _scalar("exponent", self.exponent, owner)
+        check_scalar("exponent", self.exponent, owner)
         check_param("rho_s", self.rho_s, lo=0.0, owner=owner)
 
     def value(self, ix, iy, iz, ox, oy, oz):
@@ -146,23 +152,6 @@ class CosineLobe(eqx.Module):
         return sx, sy, sz, 0.5 * safe_log(l2, NORM_EPS), ok
 
 
-def _power_cosine_about(s, u, exponent):
-    """Power-cosine sample about the unit axis ``s`` (..., 3): ``cos = u0^(1/(n+1))`` with
-    ``1 - cos`` from ``expm1`` (keeps narrow lobes' width in float32); ``u0 = 0`` gives ``cos = 0``
-    (a direction orthogonal to the axis)."""
-    u0 = u[..., 0]
-    ok = u0 > 0
-    lu = jnp.log(jnp.where(ok, u0, 1.0)) / (exponent + 1.0)
-    one_minus = jnp.where(ok, -jnp.expm1(lu), 1.0)
-    r = safe_sqrt(one_minus * (2.0 - one_minus))
-    phi = 2.0 * math.pi * u[..., 1]
-    local = join(r * jnp.cos(phi), r * jnp.sin(phi), 1.0 - one_minus)
-    t, b, n = frame_from_normal(s)
-    w = to_world(local, t, b, n)
-    x, y, z, _ = safe_normalize3(w[..., 0], w[..., 1], w[..., 2])
-    return join(x, y, z)
-
-
 class Lafortune(AbstractBRDF):
     """Lafortune et al. 1997 generalised cosine lobes with a Lambertian term (module docstring)::
 
@@ -176,8 +165,8 @@ class Lafortune(AbstractBRDF):
     #: the checks look at three view azimuths (brdf_fit.checks._views)
     anisotropic: ClassVar[bool] = True
 
-    rho_d: object = 0.3
-    lobes: tuple = (CosineLobe(),)
+    rho_d: Channels = bounded(0.3, lo=0.0, hi=1.0, channels=True)
+    lobes: tuple[CosineLobe, ...] = (CosineLobe(),)
 
     def __check_init__(self):
         check_param("rho_d", self.rho_d, lo=0.0, hi=1.0, owner="Lafortune")
@@ -220,7 +209,7 @@ class Lafortune(AbstractBRDF):
     # ------------------------------------------------------------------ interface
 
     def eval(self, wi, wo):
-        ok = (wi[..., 2] > 0) & (wo[..., 2] > 0)
+        ok = upper(wi, wo)
         ix, iy, iz = split(wi)
         ox, oy, oz = split(wo)
         ch = self.channels()
@@ -231,9 +220,8 @@ class Lafortune(AbstractBRDF):
         return jnp.where(expand_channels(ok, ch), val, 0.0)
 
     def pdf(self, wi, wo):
-        ok = (wi[..., 2] > 0) & (wo[..., 2] > 0)
-        nrm = jnp.zeros_like(wo).at[..., 2].set(1.0)
-        ox, oy, oz = split(jnp.where((wo[..., 2] > 0)[..., None], wo, nrm))
+        ok = upper(wi, wo)
+        ox, oy, oz = split(sanitize_direction(wo, wo[..., 2] > 0))
         ix, iy, iz = split(wi)
         p_d, p_lobes, axes = self._probabilities(ox, oy, oz)
         val = p_d * jnp.maximum(iz, 0.0) * INV_PI
@@ -244,19 +232,16 @@ class Lafortune(AbstractBRDF):
         return jnp.where(ok, val, 0.0)
 
     def sample(self, wo, uc, u):
-        okv = wo[..., 2] > 0
-        nrm = jnp.zeros_like(wo).at[..., 2].set(1.0)
-        wos = jnp.where(okv[..., None], wo, nrm)
+        wos, okv = sanitize_wo(wo)
         p_d, p_lobes, axes = self._probabilities(*split(wos))
         wi = sample_cosine_hemisphere(u)
         cdf = p_d
         for lobe, pj, (sx, sy, sz, _) in zip(self.lobes, p_lobes, axes, strict=True):
-            ws = _power_cosine_about(join(sx, sy, sz), u, lobe.exponent)
+            ws = sample_power_cosine_about(join(sx, sy, sz), u, lobe.exponent)
             pick = (uc >= cdf) & (uc < cdf + pj)
             wi = jnp.where(pick[..., None], ws, wi)
             cdf = cdf + pj
-        pdf = jnp.where(okv, self.pdf(wi, wo), 0.0)
-        return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(self, wi, wo, pdf))
+        return finish_sample(self, wi, wo, okv)
 
     def selection_hint(self):
         """``max rho_d + sum_j max(rho_s,j) max(|C_j|)^n_j 2 pi/(n_j + 2)`` (an upper estimate of
@@ -270,13 +255,6 @@ class Lafortune(AbstractBRDF):
 
 
 # ----------------------------------------------------------------------------- registry entry
-
-#: Coefficient bound of the registry entry: |C| <= 1.1 covers every energy-normalised Phong-like
-#: lobe (``Cz = ((n+2)/(2 pi))^(1/n)`` peaks at 1.068 near n = 15) and the published light-blue
-#: house-paint fit (|C| <= 1.032, models.md 4.21); with n <= N_MAX, |C|^n <= 1.1^500 = 5e20.
-C_MAX = 1.1
-N_MAX = 500.0
-
 
 
 def registry_entries():

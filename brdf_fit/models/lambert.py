@@ -8,21 +8,20 @@ is exactly ``rho``.
 
 from __future__ import annotations
 
-import math
-
 import jax.numpy as jnp
 
+from brdf_fit.core.numerics import INV_PI
+from brdf_fit.core.params import Channels, bounded
 from brdf_fit.core.validate import check_param
-from brdf_fit.core.warp import cosine_hemisphere_pdf, sample_cosine_hemisphere
-from brdf_fit.models._base import AbstractBRDF, BRDFSample, sample_weight, expand_channels
-
-INV_PI = 1.0 / math.pi
+from brdf_fit.core.warp import cosine_hemisphere_pdf
+from brdf_fit.models._base import AbstractBRDF, expand_channels
+from brdf_fit.models._lobes import max_over_channels, sample_cosine
 
 
 class Lambert(AbstractBRDF):
     """Ideal diffuse BRDF ``rho/pi`` (Lambert 1760). ``rho`` may be RGB."""
 
-    rho: object = 0.8
+    rho: Channels = bounded(0.8, lo=0.0, hi=1.0, channels=True)
 
     def __check_init__(self):
         check_param("rho", self.rho, lo=0.0, owner="Lambert")
@@ -36,9 +35,7 @@ class Lambert(AbstractBRDF):
         return jnp.where(wo[..., 2] > 0, cosine_hemisphere_pdf(wi), 0.0)
 
     def sample(self, wo, uc, u):
-        wi = sample_cosine_hemisphere(u)
-        pdf = self.pdf(wi, wo)
-        return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(self, wi, wo, pdf))
+        return sample_cosine(self, wo, u)
 
     def selection_hint(self):
-        return jnp.max(jnp.asarray(self.rho))
+        return max_over_channels(self.rho)

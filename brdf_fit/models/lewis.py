@@ -38,11 +38,10 @@ the horizon fail (pdf 0, weight 0). Quadrature hint ``("mirror", n)``.
 
 from __future__ import annotations
 
-import numpy as np
-
 from brdf_fit.core.params import Entry, Param
-from brdf_fit.core.validate import ParameterError, check_param, concrete
-from brdf_fit.models.phong import ModifiedPhong, _check_exponent
+from brdf_fit.core.validate import check_param, check_sum_at_most_one
+from brdf_fit.models._lobes import check_exponent
+from brdf_fit.models.phong import ModifiedPhong
 
 __all__ = ["Lewis", "registry_entries"]
 
@@ -64,15 +63,8 @@ def Lewis(kd=0.4, ks=0.4, exponent=30.0) -> ModifiedPhong:
     owner = "Lewis"
     check_param("kd", kd, lo=0.0, hi=1.0, owner=owner)
     check_param("ks", ks, lo=0.0, hi=1.0, owner=owner)
-    _check_exponent(exponent, owner)
-    d, s = concrete(kd), concrete(ks)
-    if d is not None and s is not None and d.dtype != object and s.dtype != object:
-        tot = np.asarray(d, dtype=float) + np.asarray(s, dtype=float)
-        if np.any(tot > 1.0):
-            raise ParameterError(
-                f"{owner}: kd + ks must be <= 1 in every channel (energy conservation, "
-                f"Lewis 1994), got kd + ks = {tot.tolist()}"
-            )
+    check_exponent(exponent, owner)
+    check_sum_at_most_one(kd, ks, "kd + ks", owner, why="energy conservation, Lewis 1994")
     return ModifiedPhong(rho_d=kd, rho_s=ks, exponent=exponent)
 
 

@@ -23,31 +23,29 @@ import equinox as eqx
 import jax.numpy as jnp
 
 from brdf_fit.core.frame import join, split
-from brdf_fit.core.fresnel import SchlickFresnel
+from brdf_fit.core.fresnel import AbstractFresnel, SchlickFresnel
 from brdf_fit.core.microfacet import (
     GGX,
+    AbstractDistribution,
+    AbstractMasking,
     SmithHeightCorrelated,
     VCavity,
     reflect_about,
     vcavity_sample_visible,
 )
-from brdf_fit.core.numerics import safe_div, safe_normalize3
-from brdf_fit.models._base import AbstractBRDF, BRDFSample, sample_weight, expand_channels
+from brdf_fit.core.numerics import safe_div
+from brdf_fit.models._base import AbstractBRDF, expand_channels
+from brdf_fit.models._lobes import finish_sample, half_geometry, sanitize
 
 _SAMPLING = ("auto", "visible", "ndf")
-
-
-def _sanitize(valid, x, y, z):
-    """Replace invalid lanes by the normal (0, 0, 1) before any singular function sees them."""
-    return jnp.where(valid, x, 0.0), jnp.where(valid, y, 0.0), jnp.where(valid, z, 1.0)
 
 
 class MicrofacetBRDF(AbstractBRDF):
     """``F D G2 / (4 cos_i cos_o)`` with pluggable parts (see the module docstring)."""
 
-    distribution: object = GGX(0.5)
-    masking: object = SmithHeightCorrelated()
-    fresnel: object = SchlickFresnel(0.04)
+    distribution: AbstractDistribution = GGX(0.5)
+    masking: AbstractMasking = SmithHeightCorrelated()
+    fresnel: AbstractFresnel = SchlickFresnel(0.04)
     sampling: str = eqx.field(static=True, default="auto")
 
     def __check_init__(self):
@@ -68,19 +66,8 @@ class MicrofacetBRDF(AbstractBRDF):
             return "vcavity"
         return "visible" if self.distribution.supports_visible else "ndf"
 
-    def _geometry(self, wi, wo):
-        ix, iy, iz = split(wi)
-        ox, oy, oz = split(wo)
-        hx, hy, hz, hok = safe_normalize3(ix + ox, iy + oy, iz + oz)
-        valid = (iz > 0) & (oz > 0) & hok
-        ix, iy, iz = _sanitize(valid, ix, iy, iz)
-        ox, oy, oz = _sanitize(valid, ox, oy, oz)
-        hx, hy, hz = _sanitize(valid, hx, hy, hz)
-        d = ox * hx + oy * hy + oz * hz
-        return valid, (ix, iy, iz), (ox, oy, oz), (hx, hy, hz), d
-
     def eval(self, wi, wo):
-        valid, (ix, iy, iz), (ox, oy, oz), (hx, hy, hz), d = self._geometry(wi, wo)
+        valid, (ix, iy, iz), (ox, oy, oz), (hx, hy, hz), d = half_geometry(wi, wo)
         dist = self.distribution
         DV = dist.D(hx, hy, hz) * self.masking.V(dist, ix, iy, iz, ox, oy, oz, hz, d)
         ch = self.channels()
@@ -88,7 +75,7 @@ class MicrofacetBRDF(AbstractBRDF):
         return jnp.where(expand_channels(valid, ch), F * expand_channels(DV, ch), 0.0)
 
     def pdf(self, wi, wo):
-        valid, _, (ox, oy, oz), (hx, hy, hz), d = self._geometry(wi, wo)
+        valid, _, (ox, oy, oz), (hx, hy, hz), d = half_geometry(wi, wo)
         dist = self.distribution
         D = dist.D(hx, hy, hz)
         mode = self._mode()
@@ -103,7 +90,7 @@ class MicrofacetBRDF(AbstractBRDF):
     def sample(self, wo, uc, u):
         ox, oy, oz = split(wo)
         ok = oz > 0
-        ox, oy, oz = _sanitize(ok, ox, oy, oz)
+        ox, oy, oz = sanitize(ok, ox, oy, oz)
         u1, u2 = u[..., 0], u[..., 1]
         dist = self.distribution
         mode = self._mode()
@@ -113,9 +100,10 @@ class MicrofacetBRDF(AbstractBRDF):
             m = vcavity_sample_visible(dist, ox, oy, oz, u1, u2, uc)
         else:
             m = dist.sample_normal(u1, u2)
-        wi = join(*reflect_about(ox, oy, oz, *m))
-        pdf = jnp.where(ok, self.pdf(wi, wo), 0.0)
-        return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(self, wi, wo, pdf))
+        return finish_sample(self, join(*reflect_about(ox, oy, oz, *m)), wo, ok)
 
     def selection_hint(self):
         return self.fresnel.reflectance_hint()
+
+    def is_anisotropic(self) -> bool:
+        return self.distribution.is_anisotropic()

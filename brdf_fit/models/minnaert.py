@@ -33,19 +33,21 @@ No cosine clamp is applied: for ``k < 1`` the value at ``cl = cv = 1e-7`` is the
 
 from __future__ import annotations
 
-import math
-
 import jax.numpy as jnp
 
-from brdf_fit.core.numerics import safe_pow
-from brdf_fit.core.params import Entry, Param
-from brdf_fit.core.validate import ParameterError, check_param, concrete
-from brdf_fit.models._base import AbstractBRDF, BRDFSample, sample_weight, expand_channels
-from brdf_fit.models.phong import _power_cosine_local, _sanitize_wo, _upper
+from brdf_fit.core.numerics import INV_TWO_PI, safe_pow
+from brdf_fit.core.params import Channels, Entry, Param, Scalar, bounded
+from brdf_fit.core.validate import check_param, check_scalar
+from brdf_fit.models._base import AbstractBRDF, expand_channels
+from brdf_fit.models._lobes import (
+    finish_sample,
+    max_over_channels,
+    power_cosine_local,
+    scaled_where,
+    upper,
+)
 
 __all__ = ["Minnaert", "registry_entries"]
-
-INV_TWO_PI = 0.5 / math.pi
 
 _MINNAERT_1941 = (
     "M. Minnaert, The reciprocity principle in lunar photometry, Astrophysical Journal "
@@ -62,35 +64,29 @@ class Minnaert(AbstractBRDF):
     ``pdf = (k+1)/(2 pi) cl^k``, weight ``rho cv^(k-1)`` for every sample).
     """
 
-    rho: object = 0.8
-    k: object = 0.75
+    rho: Channels = bounded(0.8, lo=0.0, hi=1.0, channels=True)
+    k: Scalar = bounded(0.75, lo=0.0, hi=4.0)
 
     def __check_init__(self):
         check_param("rho", self.rho, lo=0.0, hi=1.0, owner="Minnaert")
         check_param("k", self.k, lo=0.0, owner="Minnaert")
-        v = concrete(self.k)
-        if v is not None and v.dtype != object and v.ndim != 0:
-            raise ParameterError(f"Minnaert: parameter 'k' must be a scalar, got shape {v.shape}")
+        check_scalar("k", self.k, "Minnaert")
 
     def eval(self, wi, wo):
-        ok = _upper(wi, wo)
+        ok = upper(wi, wo)
         cl = jnp.where(ok, wi[..., 2], 1.0)
         cv = jnp.where(ok, wo[..., 2], 1.0)
         lobe = (self.k + 1.0) * INV_TWO_PI * jnp.exp((self.k - 1.0) * (jnp.log(cl) + jnp.log(cv)))
-        ch = self.channels()
-        return jnp.where(expand_channels(ok, ch), self.rho * expand_channels(lobe, ch), 0.0)
+        return scaled_where(ok, self.rho, lobe, self.channels())
 
     def pdf(self, wi, wo):
         lobe = (self.k + 1.0) * INV_TWO_PI * safe_pow(jnp.maximum(wi[..., 2], 0.0), self.k)
-        return jnp.where(_upper(wi, wo), lobe, 0.0)
+        return jnp.where(upper(wi, wo), lobe, 0.0)
 
     def sample(self, wo, uc, u):
-        _, ok = _sanitize_wo(wo)
-        # the phong helper uses expm1 for 1 - cos (accurate for large k); u0 = 0 lands on the
+        # power_cosine_local uses expm1 for 1 - cos (accurate for large k); u0 = 0 lands on the
         # horizon, where pdf = 0: a failed sample
-        wi = _power_cosine_local(u, self.k)
-        pdf = jnp.where(ok, self.pdf(wi, wo), 0.0)
-        return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(self, wi, wo, pdf))
+        return finish_sample(self, power_cosine_local(u, self.k), wo, wo[..., 2] > 0)
 
     def albedo(self, wo):
         """Closed-form directional albedo ``rho cv^(k-1)`` (0 for ``wo`` at or below the
@@ -101,7 +97,7 @@ class Minnaert(AbstractBRDF):
         return self.rho * expand_channels(a, self.channels())
 
     def selection_hint(self):
-        return jnp.max(jnp.asarray(self.rho))
+        return max_over_channels(self.rho)
 
 
 # Measured with brdf_fit.checks.run_checks("minnaert") at the defaults (float64); asserted by

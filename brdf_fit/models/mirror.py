@@ -15,14 +15,14 @@ from typing import ClassVar
 import jax.numpy as jnp
 
 from brdf_fit.core.frame import mirror
-from brdf_fit.core.fresnel import SchlickFresnel
+from brdf_fit.core.fresnel import AbstractFresnel, SchlickFresnel
 from brdf_fit.models._base import AbstractBRDF, BRDFSample, expand_channels
 
 
 class Mirror(AbstractBRDF):
     """Perfectly smooth specular reflector with a Fresnel component (default: F = 1)."""
 
-    fresnel: object = SchlickFresnel(f0=1.0)
+    fresnel: AbstractFresnel = SchlickFresnel(f0=1.0)
     is_delta: ClassVar[bool] = True
 
     def eval(self, wi, wo):
@@ -39,6 +39,9 @@ class Mirror(AbstractBRDF):
         ch = self.channels()
         cc = expand_channels(jnp.maximum(c, 0.0), ch)
         return jnp.where(expand_channels(c > 0, ch), self.fresnel(cc), 0.0)
+
+    def delta_albedo(self, wo):
+        return self.albedo(wo)
 
     def sample(self, wo, uc, u):
         wi = mirror(wo)

@@ -12,15 +12,17 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
+from brdf_fit.core.params import Scalar, bounded
 from brdf_fit.core.validate import check_param
-from brdf_fit.models._base import AbstractBRDF, BRDFSample, sample_weight, expand_channels
+from brdf_fit.models._base import AbstractBRDF, BRDFSample, expand_channels
+from brdf_fit.models._lobes import finish_sample, max_over_channels
 
 
 class Scaled(AbstractBRDF):
     """``scale * lobe`` (e.g. the ``ks`` of Torrance-Sparrow). Same sampler and pdf as the lobe."""
 
     lobe: AbstractBRDF
-    scale: object = 1.0
+    scale: Scalar = bounded(1.0, lo=0.0, hi=1.0)
 
     def __check_init__(self):
         check_param("scale", self.scale, lo=0.0, owner="Scaled")
@@ -36,17 +38,29 @@ class Scaled(AbstractBRDF):
         return BRDFSample(wi=s.wi, pdf=s.pdf, weight=self.scale * s.weight)
 
     def selection_hint(self):
-        return jnp.max(jnp.asarray(self.scale)) * self.lobe.selection_hint()
+        return max_over_channels(self.scale) * self.lobe.selection_hint()
 
     @property
     def is_delta(self):  # type: ignore[override]
         return self.lobe.is_delta
 
+    def terms(self):
+        return ((self.scale, self.lobe),)
+
+    def pdf_terms(self):
+        return ((1.0, self.lobe),)
+
+    def is_compound(self) -> bool:
+        return True
+
+    def is_anisotropic(self) -> bool:
+        return self.lobe.is_anisotropic()
+
 
 class Mixture(AbstractBRDF):
     """Sum of non-delta lobes, sampled by one-sample lobe selection (see the module docstring)."""
 
-    lobes: tuple
+    lobes: tuple[AbstractBRDF, ...]
 
     def __check_init__(self):
         if len(self.lobes) == 0:
@@ -91,8 +105,20 @@ class Mixture(AbstractBRDF):
         for j, lobe in enumerate(self.lobes):
             s = lobe.sample(wo, uc2, u)
             wi = s.wi if wi is None else jnp.where((idx == j)[..., None], s.wi, wi)
-        pdf = self.pdf(wi, wo)
-        return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(self, wi, wo, pdf))
+        return finish_sample(self, wi, wo)
 
     def selection_hint(self):
         return sum(lobe.selection_hint() for lobe in self.lobes)
+
+    def terms(self):
+        return tuple((1.0, lobe) for lobe in self.lobes)
+
+    def pdf_terms(self):
+        p = self.probabilities()
+        return tuple((p[j], lobe) for j, lobe in enumerate(self.lobes))
+
+    def is_compound(self) -> bool:
+        return True
+
+    def is_anisotropic(self) -> bool:
+        return any(lobe.is_anisotropic() for lobe in self.lobes)

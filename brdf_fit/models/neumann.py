@@ -36,61 +36,55 @@ Sampling (exact): the power-cosine lobe about the mirror direction ``r_o`` (Lafo
 
 from __future__ import annotations
 
-import math
-
 import jax.numpy as jnp
 
 from brdf_fit.core.numerics import safe_div
-from brdf_fit.core.params import Entry, Param
+from brdf_fit.core.params import Channels, Entry, Param, Scalar, bounded
 from brdf_fit.core.validate import check_param
-from brdf_fit.models._base import AbstractBRDF, BRDFSample, sample_weight, expand_channels
-from brdf_fit.models.phong import (
-    _check_exponent,
-    _lobe_pdf,
-    _max_over_channels,
-    _sample_lobe_about_mirror,
-    _sanitize_wo,
-    _upper,
+from brdf_fit.models._base import AbstractBRDF, QuadratureLobe
+from brdf_fit.models._lobes import (
+    EXPONENT_MAX,
+    check_exponent,
+    max_over_channels,
+    mirror_lobe_pdf,
+    power_cosine_pdf,
+    sample_mirror_lobe,
+    scaled_where,
+    upper,
 )
 
 __all__ = ["NeumannPhong", "registry_entries"]
-
-INV_TWO_PI = 0.5 / math.pi
 
 
 class NeumannPhong(AbstractBRDF):
     """``rho_s (n+1)/(2 pi) cos^n(alpha_r) / max(cos_i, cos_o)`` (module docstring). ``rho_s`` may
     carry channels; the exponent is a scalar >= 0."""
 
-    rho_s: object = 0.8
-    exponent: object = 50.0
+    rho_s: Channels = bounded(0.8, lo=0.0, hi=1.0, channels=True)
+    exponent: Scalar = bounded(50.0, lo=0.0, hi=EXPONENT_MAX)
 
     def __check_init__(self):
         check_param("rho_s", self.rho_s, lo=0.0, hi=1.0, owner="NeumannPhong")
-        _check_exponent(self.exponent, "NeumannPhong")
+        check_exponent(self.exponent, "NeumannPhong")
 
     def eval(self, wi, wo):
-        ok = _upper(wi, wo)
+        ok = upper(wi, wo)
         cmax = jnp.where(ok, jnp.maximum(wi[..., 2], wo[..., 2]), 0.0)
-        val = safe_div(_lobe_pdf(wi, wo, self.exponent), cmax)
-        ch = self.channels()
-        return jnp.where(expand_channels(ok, ch), self.rho_s * expand_channels(val, ch), 0.0)
+        val = safe_div(power_cosine_pdf(wi, wo, self.exponent), cmax)
+        return scaled_where(ok, self.rho_s, val, self.channels())
 
     def pdf(self, wi, wo):
-        return jnp.where(_upper(wi, wo), _lobe_pdf(wi, wo, self.exponent), 0.0)
+        return mirror_lobe_pdf(wi, wo, self.exponent)
 
     def sample(self, wo, uc, u):
-        wos, ok = _sanitize_wo(wo)
-        wi = _sample_lobe_about_mirror(wos, u, self.exponent)
-        pdf = jnp.where(ok, self.pdf(wi, wo), 0.0)
-        return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(self, wi, wo, pdf))
+        return sample_mirror_lobe(self, wo, u, self.exponent)
 
-    def quadrature_lobe(self):
+    def quadrature_lobe(self) -> QuadratureLobe:
         """Quadrature hint: a power-cosine lobe about the mirror direction."""
-        return "mirror", self.exponent
+        return QuadratureLobe("mirror", self.exponent)
 
     def selection_hint(self):
-        return _max_over_channels(self.rho_s)
+        return max_over_channels(self.rho_s)
 
 
 _NNSK_1999 = (

@@ -74,16 +74,14 @@ import equinox as eqx
 import jax.numpy as jnp
 
 from brdf_fit.core.frame import split
-from brdf_fit.core.numerics import safe_div, safe_sqrt
-from brdf_fit.core.params import Entry, Param
-from brdf_fit.core.validate import ParameterError, check_param, concrete
-from brdf_fit.core.warp import sample_cosine_hemisphere
-from brdf_fit.models._base import AbstractBRDF, BRDFSample, sample_weight, expand_channels
-from brdf_fit.models.phong import _upper
+from brdf_fit.core.numerics import INV_PI, safe_div, safe_sqrt
+from brdf_fit.core.params import Channels, Entry, Param, Scalar, bounded
+from brdf_fit.core.validate import ParameterError, check_param, check_scalar
+from brdf_fit.models._base import AbstractBRDF, expand_channels
+from brdf_fit.models._lobes import cosine_pdf, max_over_channels, sample_cosine, upper
 
 __all__ = ["OrenNayar", "registry_entries"]
 
-INV_PI = 1.0 / math.pi
 TWO_OVER_PI = 2.0 / math.pi
 
 #: Sines of polar angles at or below this count as 0 where the azimuth difference is formed:
@@ -112,8 +110,8 @@ class OrenNayar(AbstractBRDF):
     Sampling: cosine hemisphere, ``pdf = cos(theta_i)/pi`` (approximate match to ``f cos``).
     """
 
-    rho: object = 0.8
-    sigma: object = 0.3
+    rho: Channels = bounded(0.8, lo=0.0, hi=1.0, channels=True)
+    sigma: Scalar = bounded(0.3, lo=0.0, hi=1.0)
     variant: str = eqx.field(static=True, default="full")
 
     def __check_init__(self):
@@ -123,15 +121,12 @@ class OrenNayar(AbstractBRDF):
                                  f"{self.variant!r}")
         check_param("rho", self.rho, lo=0.0, hi=1.0, owner=owner)
         check_param("sigma", self.sigma, lo=0.0, owner=owner)
-        v = concrete(self.sigma)
-        if v is not None and v.dtype != object and v.ndim != 0:
-            raise ParameterError(f"{owner}: parameter 'sigma' must be a scalar, got shape "
-                                 f"{v.shape}")
+        check_scalar("sigma", self.sigma, owner)
 
     def _terms(self, wi, wo):
         """Channel-free pieces: ``(ok, g1, g2)`` with ``f = rho/pi g1 + rho^2/pi g2``, where
         ``g1`` is the (unclamped) single-scattering bracket and ``g2`` the interreflection one."""
-        ok = _upper(wi, wo)
+        ok = upper(wi, wo)
         ix, iy, iz = split(wi)
         ox, oy, oz = split(wo)
         # sanitise: invalid lanes become the normal (every formula below is finite there)
@@ -177,15 +172,13 @@ class OrenNayar(AbstractBRDF):
         return jnp.where(expand_channels(ok, ch), val, 0.0)
 
     def pdf(self, wi, wo):
-        return jnp.where(_upper(wi, wo), wi[..., 2] * INV_PI, 0.0)
+        return cosine_pdf(wi, wo)
 
     def sample(self, wo, uc, u):
-        wi = sample_cosine_hemisphere(u)
-        pdf = self.pdf(wi, wo)
-        return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(self, wi, wo, pdf))
+        return sample_cosine(self, wo, u)
 
     def selection_hint(self):
-        return jnp.max(jnp.asarray(self.rho))
+        return max_over_channels(self.rho)
 
 
 def registry_entries():

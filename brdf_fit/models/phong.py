@@ -19,19 +19,33 @@ Samplers (models.md 2.5.2, 2.5.3):
 
 from __future__ import annotations
 
-import math
-
 import equinox as eqx
 import jax.numpy as jnp
-import numpy as np
 
-from brdf_fit.core.frame import frame_from_normal, join, split, to_world
 from brdf_fit.core.fresnel import dielectric, ior_from_f0, schlick
-from brdf_fit.core.numerics import safe_div, safe_normalize3, safe_pow, safe_sqrt
-from brdf_fit.core.params import Entry, Param
-from brdf_fit.core.validate import ParameterError, check_param, concrete
-from brdf_fit.core.warp import sample_cosine_hemisphere
-from brdf_fit.models._base import AbstractBRDF, BRDFSample, sample_weight, expand_channels
+from brdf_fit.core.numerics import INV_PI, INV_TWO_PI, safe_div, safe_pow
+from brdf_fit.core.params import Channels, Entry, Param, Scalar, bounded
+from brdf_fit.core.validate import ParameterError, check_param, check_sum_at_most_one
+from brdf_fit.models._base import AbstractBRDF, QuadratureLobe, expand_channels
+from brdf_fit.models._lobes import (
+    EXPONENT_MAX,
+    check_exponent,
+    cos_alpha_r,
+    diffuse_mirror_pdf,
+    finish_sample,
+    half_vector,
+    lobe_probability,
+    max_over_channels,
+    mirror_lobe_pdf,
+    power_cosine_local,
+    power_cosine_pdf,
+    reflect_about_half,
+    sample_diffuse_or_mirror,
+    sample_mirror_lobe,
+    sanitize_wo,
+    scaled_where,
+    upper,
+)
 
 __all__ = [
     "PhongOriginal",
@@ -40,9 +54,6 @@ __all__ = [
     "BlinnPhong",
     "registry_entries",
 ]
-
-INV_PI = 1.0 / math.pi
-INV_TWO_PI = 0.5 / math.pi
 
 _PHONG_1975 = (
     "B. T. Phong, Illumination for computer generated pictures, Communications of the ACM "
@@ -61,66 +72,6 @@ _RTR3 = (
     "N. Hoffman, Crafting physically motivated shading models for video games, SIGGRAPH 2010 "
     "course notes"
 )
-
-
-# ----------------------------------------------------------------------------- geometry helpers
-
-
-def _cos_alpha_r(wi, wo):
-    """``max(0, r_o.wi) = max(0, 2 (n.wi)(n.wo) - wi.wo)`` (symmetric in wi and wo)."""
-    ix, iy, iz = split(wi)
-    ox, oy, oz = split(wo)
-    return jnp.maximum(2.0 * iz * oz - (ix * ox + iy * oy + iz * oz), 0.0)
-
-
-def _upper(wi, wo):
-    return (wi[..., 2] > 0) & (wo[..., 2] > 0)
-
-
-def _sanitize_wo(wo):
-    """``wo`` where it is above the horizon, the normal elsewhere (and the flag)."""
-    ok = wo[..., 2] > 0
-    okv = ok[..., None]
-    n = jnp.zeros_like(wo).at[..., 2].set(1.0)
-    return jnp.where(okv, wo, n), ok
-
-
-def _power_cosine_local(u, exponent):
-    """Power-cosine lobe about +z: ``cos = u0^(1/(n+1))`` (Lafortune & Willems 1994, section 3),
-    with ``1 - cos`` from ``expm1`` so narrow lobes (n = 1e4..1e6) keep their width in float32."""
-    u0 = u[..., 0]
-    ok = u0 > 0
-    lu = jnp.log(jnp.where(ok, u0, 1.0)) / (exponent + 1.0)
-    one_minus = jnp.where(ok, -jnp.expm1(lu), 1.0)  # 1 - cos; cos = 0 when u0 = 0
-    z = 1.0 - one_minus
-    r = safe_sqrt(one_minus * (2.0 - one_minus))
-    phi = 2.0 * math.pi * u[..., 1]
-    return join(r * jnp.cos(phi), r * jnp.sin(phi), z)
-
-
-def _sample_lobe_about_mirror(wo, u, exponent):
-    """Power-cosine sample about ``r_o = mirror(wo)`` (``wo`` assumed above the horizon)."""
-    r = wo * jnp.asarray([-1.0, -1.0, 1.0], dtype=wo.dtype)
-    t, b, nn = frame_from_normal(r)
-    w = to_world(_power_cosine_local(u, exponent), t, b, nn)
-    x, y, z, _ = safe_normalize3(w[..., 0], w[..., 1], w[..., 2])
-    return join(x, y, z)
-
-
-def _lobe_pdf(wi, wo, exponent):
-    """``(n+1)/(2 pi) max(0, r_o.wi)^n`` (the power-cosine density, whole-sphere normalised)."""
-    return (exponent + 1.0) * INV_TWO_PI * safe_pow(_cos_alpha_r(wi, wo), exponent)
-
-
-def _max_over_channels(x):
-    return jnp.max(jnp.asarray(x))
-
-
-def _check_exponent(exponent, owner):
-    check_param("exponent", exponent, lo=0.0, owner=owner)
-    v = concrete(exponent)
-    if v is not None and v.dtype != object and v.ndim != 0:
-        raise ParameterError(f"{owner}: parameter 'exponent' must be a scalar, got shape {v.shape}")
 
 
 # ----------------------------------------------------------------------------- Phong 1975
@@ -144,62 +95,40 @@ class PhongOriginal(AbstractBRDF):
     ``cos(theta_i) <= 0`` with a finite gradient.
     """
 
-    rho_s: object = 0.5
-    exponent: object = 20.0
+    rho_s: Channels = bounded(0.5, lo=0.0, hi=1.0, channels=True)
+    exponent: Scalar = bounded(20.0, lo=0.0, hi=EXPONENT_MAX)
 
     def __check_init__(self):
         check_param("rho_s", self.rho_s, lo=0.0, hi=1.0, owner="PhongOriginal")
-        _check_exponent(self.exponent, "PhongOriginal")
+        check_exponent(self.exponent, "PhongOriginal")
 
     def eval(self, wi, wo):
-        ok = _upper(wi, wo)
-        lobe = _lobe_pdf(wi, wo, self.exponent)
+        ok = upper(wi, wo)
+        lobe = power_cosine_pdf(wi, wo, self.exponent)
         val = safe_div(lobe, jnp.where(ok, wi[..., 2], 0.0))
-        ch = self.channels()
-        return jnp.where(expand_channels(ok, ch), self.rho_s * expand_channels(val, ch), 0.0)
+        return scaled_where(ok, self.rho_s, val, self.channels())
 
     def pdf(self, wi, wo):
-        return jnp.where(_upper(wi, wo), _lobe_pdf(wi, wo, self.exponent), 0.0)
+        return mirror_lobe_pdf(wi, wo, self.exponent)
 
     def sample(self, wo, uc, u):
-        wos, ok = _sanitize_wo(wo)
-        wi = _sample_lobe_about_mirror(wos, u, self.exponent)
-        pdf = jnp.where(ok, self.pdf(wi, wo), 0.0)
-        return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(self, wi, wo, pdf))
+        return sample_mirror_lobe(self, wo, u, self.exponent)
 
-    def quadrature_lobe(self):
+    def quadrature_lobe(self) -> QuadratureLobe:
         """Quadrature hint (:func:`brdf_fit.verify.albedo.lobe_rule`): a power-cosine lobe about the
         mirror direction."""
-        return "mirror", self.exponent
+        return QuadratureLobe("mirror", self.exponent)
 
     def selection_hint(self):
-        return _max_over_channels(self.rho_s)
+        return max_over_channels(self.rho_s)
 
 
 # ----------------------------------------------------------------------------- modified Phong
 
 
-def _lobe_probability(hint_d, hint_s):
-    """``p_d = hint_d / (hint_d + hint_s)`` (1 when both vanish: then nothing reflects)."""
-    tot = hint_d + hint_s
-    return jnp.where(tot > 0, safe_div(hint_d, tot), 1.0)
-
-
-def _mixture_sample(model, wo, uc, u, p_d):
-    """Classic one-sample lobe choice: ``uc < p_d``: cosine hemisphere, else the power-cosine lobe
-    about ``r_o``; the returned pdf is the combined mixture pdf ``model.pdf``."""
-    wos, ok = _sanitize_wo(wo)
-    wd = sample_cosine_hemisphere(u)
-    ws = _sample_lobe_about_mirror(wos, u, model.exponent)
-    wi = jnp.where((uc < p_d)[..., None], wd, ws)
-    pdf = jnp.where(ok, model.pdf(wi, wo), 0.0)
-    return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(model, wi, wo, pdf))
-
-
-def _mixture_pdf(wi, wo, exponent, p_d):
-    diff = jnp.maximum(wi[..., 2], 0.0) * INV_PI
-    spec = _lobe_pdf(wi, wo, exponent)
-    return jnp.where(_upper(wi, wo), p_d * diff + (1.0 - p_d) * spec, 0.0)
+def _modified_phong_lobe(wi, wo, exponent):
+    """``(n+2)/(2 pi) cos^n(alpha_r)``: the lobe normalised on the cosine-weighted hemisphere."""
+    return (exponent + 2.0) * INV_TWO_PI * safe_pow(cos_alpha_r(wi, wo), exponent)
 
 
 class ModifiedPhong(AbstractBRDF):
@@ -217,47 +146,40 @@ class ModifiedPhong(AbstractBRDF):
     specular samples below the horizon fail.
     """
 
-    rho_d: object = 0.3
-    rho_s: object = 0.5
-    exponent: object = 20.0
+    rho_d: Channels = bounded(0.3, lo=0.0, hi=1.0, channels=True)
+    rho_s: Channels = bounded(0.5, lo=0.0, hi=1.0, channels=True)
+    exponent: Scalar = bounded(20.0, lo=0.0, hi=EXPONENT_MAX)
 
     def __check_init__(self):
         owner = "ModifiedPhong"
         check_param("rho_d", self.rho_d, lo=0.0, hi=1.0, owner=owner)
         check_param("rho_s", self.rho_s, lo=0.0, hi=1.0, owner=owner)
-        _check_exponent(self.exponent, owner)
-        d, s = concrete(self.rho_d), concrete(self.rho_s)
-        if d is not None and s is not None and d.dtype != object and s.dtype != object:
-            tot = np.asarray(d, dtype=float) + np.asarray(s, dtype=float)
-            if np.any(tot > 1.0):
-                raise ParameterError(
-                    f"{owner}: rho_d + rho_s must be <= 1 in every channel (energy "
-                    f"conservation), got rho_d + rho_s = {tot.tolist()}"
-                )
+        check_exponent(self.exponent, owner)
+        check_sum_at_most_one(self.rho_d, self.rho_s, "rho_d + rho_s", owner)
 
     def _p_d(self):
-        return _lobe_probability(_max_over_channels(self.rho_d), _max_over_channels(self.rho_s))
+        return lobe_probability(max_over_channels(self.rho_d), max_over_channels(self.rho_s))
 
     def eval(self, wi, wo):
-        ok = _upper(wi, wo)
-        lobe = (self.exponent + 2.0) * INV_TWO_PI * safe_pow(_cos_alpha_r(wi, wo), self.exponent)
+        ok = upper(wi, wo)
+        lobe = _modified_phong_lobe(wi, wo, self.exponent)
         ch = self.channels()
         val = self.rho_d * INV_PI + self.rho_s * expand_channels(lobe, ch)
         return jnp.where(expand_channels(ok, ch), val, 0.0)
 
     def pdf(self, wi, wo):
-        return _mixture_pdf(wi, wo, self.exponent, self._p_d())
+        return diffuse_mirror_pdf(wi, wo, self.exponent, self._p_d())
 
     def sample(self, wo, uc, u):
-        return _mixture_sample(self, wo, uc, u, self._p_d())
+        return sample_diffuse_or_mirror(self, wo, uc, u, self.exponent, self._p_d())
 
-    def quadrature_lobe(self):
+    def quadrature_lobe(self) -> QuadratureLobe:
         """Quadrature hint (:func:`brdf_fit.verify.albedo.lobe_rule`): a power-cosine lobe about the
         mirror direction."""
-        return "mirror", self.exponent
+        return QuadratureLobe("mirror", self.exponent)
 
     def selection_hint(self):
-        return _max_over_channels(self.rho_d) + _max_over_channels(self.rho_s)
+        return max_over_channels(self.rho_d) + max_over_channels(self.rho_s)
 
 
 _FRESNEL = ("schlick", "dielectric")
@@ -280,9 +202,9 @@ class ModifiedPhongFresnel(AbstractBRDF):
     Sampling as :class:`ModifiedPhong`, with ``max f0`` in place of ``max rho_s``.
     """
 
-    rho_d: object = 0.3
-    f0: object = 0.04
-    exponent: object = 20.0
+    rho_d: Channels = bounded(0.3, lo=0.0, hi=1.0, channels=True)
+    f0: Channels = bounded(0.04, lo=0.0, hi=1.0, channels=True)
+    exponent: Scalar = bounded(20.0, lo=0.0, hi=EXPONENT_MAX)
     fresnel: str = eqx.field(static=True, default="schlick")
 
     def __check_init__(self):
@@ -293,10 +215,10 @@ class ModifiedPhongFresnel(AbstractBRDF):
         check_param("rho_d", self.rho_d, lo=0.0, hi=1.0, owner=owner)
         hi_open = self.fresnel == "dielectric"
         check_param("f0", self.f0, lo=0.0, hi=1.0, hi_open=hi_open, owner=owner)
-        _check_exponent(self.exponent, owner)
+        check_exponent(self.exponent, owner)
 
     def _p_d(self):
-        return _lobe_probability(_max_over_channels(self.rho_d), _max_over_channels(self.f0))
+        return lobe_probability(max_over_channels(self.rho_d), max_over_channels(self.f0))
 
     def _F(self, cos):
         if self.fresnel == "schlick":
@@ -304,30 +226,28 @@ class ModifiedPhongFresnel(AbstractBRDF):
         return dielectric(cos, ior_from_f0(self.f0))
 
     def eval(self, wi, wo):
-        ok = _upper(wi, wo)
-        ix, iy, iz = split(wi)
-        ox, oy, oz = split(wo)
-        hx, hy, hz, _ = safe_normalize3(ix + ox, iy + oy, iz + oz)
+        ok = upper(wi, wo)
+        _, (ox, oy, oz), (hx, hy, hz), _ = half_vector(wi, wo)
         d = jnp.clip(ox * hx + oy * hy + oz * hz, 0.0, 1.0)
-        lobe = (self.exponent + 2.0) * INV_TWO_PI * safe_pow(_cos_alpha_r(wi, wo), self.exponent)
+        lobe = _modified_phong_lobe(wi, wo, self.exponent)
         ch = self.channels()
         F = self._F(expand_channels(jnp.where(ok, d, 1.0), ch))
         val = self.rho_d * INV_PI + F * expand_channels(lobe, ch)
         return jnp.where(expand_channels(ok, ch), val, 0.0)
 
     def pdf(self, wi, wo):
-        return _mixture_pdf(wi, wo, self.exponent, self._p_d())
+        return diffuse_mirror_pdf(wi, wo, self.exponent, self._p_d())
 
     def sample(self, wo, uc, u):
-        return _mixture_sample(self, wo, uc, u, self._p_d())
+        return sample_diffuse_or_mirror(self, wo, uc, u, self.exponent, self._p_d())
 
-    def quadrature_lobe(self):
+    def quadrature_lobe(self) -> QuadratureLobe:
         """Quadrature hint (:func:`brdf_fit.verify.albedo.lobe_rule`): a power-cosine lobe about the
         mirror direction."""
-        return "mirror", self.exponent
+        return QuadratureLobe("mirror", self.exponent)
 
     def selection_hint(self):
-        return _max_over_channels(self.rho_d) + _max_over_channels(self.f0)
+        return max_over_channels(self.rho_d) + max_over_channels(self.f0)
 
 
 # ----------------------------------------------------------------------------- Blinn-Phong
@@ -360,8 +280,8 @@ class BlinnPhong(AbstractBRDF):
     a sample fails (pdf 0, weight 0) when ``wi`` is below the horizon or ``wo.h <= 0``.
     """
 
-    rho_s: object = 0.5
-    exponent: object = 20.0
+    rho_s: Channels = bounded(0.5, lo=0.0, hi=1.0, channels=True)
+    exponent: Scalar = bounded(20.0, lo=0.0, hi=EXPONENT_MAX)
     normalisation: str = eqx.field(static=True, default="ndf")
 
     def __check_init__(self):
@@ -370,7 +290,7 @@ class BlinnPhong(AbstractBRDF):
             raise ParameterError(f"{owner}: normalisation must be one of {_NORMALISATIONS}, got "
                                  f"{self.normalisation!r}")
         check_param("rho_s", self.rho_s, lo=0.0, hi=1.0, owner=owner)
-        _check_exponent(self.exponent, owner)
+        check_exponent(self.exponent, owner)
 
     def _K(self):
         n = self.exponent
@@ -382,40 +302,33 @@ class BlinnPhong(AbstractBRDF):
 
     @staticmethod
     def _half(wi, wo):
-        ix, iy, iz = split(wi)
-        ox, oy, oz = split(wo)
-        hx, hy, hz, hok = safe_normalize3(ix + ox, iy + oy, iz + oz)
+        _, (ox, oy, oz), (hx, hy, hz), hok = half_vector(wi, wo)
         return hz, ox * hx + oy * hy + oz * hz, hok
 
     def eval(self, wi, wo):
         hz, _, hok = self._half(wi, wo)
-        ok = _upper(wi, wo) & hok
+        ok = upper(wi, wo) & hok
         val = self._K() * safe_pow(jnp.maximum(hz, 0.0), self.exponent)
-        ch = self.channels()
-        return jnp.where(expand_channels(ok, ch), self.rho_s * expand_channels(val, ch), 0.0)
+        return scaled_where(ok, self.rho_s, val, self.channels())
 
     def pdf(self, wi, wo):
         hz, d, hok = self._half(wi, wo)
-        ok = _upper(wi, wo) & hok & (d > 0)
+        ok = upper(wi, wo) & hok & (d > 0)
         ph = (self.exponent + 1.0) * INV_TWO_PI * safe_pow(jnp.maximum(hz, 0.0), self.exponent)
         return jnp.where(ok, safe_div(ph, 4.0 * d), 0.0)
 
     def sample(self, wo, uc, u):
-        wos, ok = _sanitize_wo(wo)
-        h = _power_cosine_local(u, self.exponent)
-        d = jnp.sum(wos * h, axis=-1, keepdims=True)
-        wi = 2.0 * d * h - wos
-        ok = ok & (d[..., 0] > 0)
-        pdf = jnp.where(ok, self.pdf(wi, wo), 0.0)
-        return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(self, wi, wo, pdf))
+        wos, ok = sanitize_wo(wo)
+        wi, d = reflect_about_half(wos, power_cosine_local(u, self.exponent))
+        return finish_sample(self, wi, wo, ok & (d[..., 0] > 0))
 
-    def quadrature_lobe(self):
+    def quadrature_lobe(self) -> QuadratureLobe:
         """Quadrature hint (:func:`brdf_fit.verify.albedo.lobe_rule`): a half-vector lobe of the
         equivalent Beckmann width ``sqrt(2/(n+2))`` (Walter et al. 2007, sec. 5.2)."""
-        return "half", jnp.sqrt(2.0 / (jnp.asarray(self.exponent) + 2.0))
+        return QuadratureLobe("half", jnp.sqrt(2.0 / (jnp.asarray(self.exponent) + 2.0)))
 
     def selection_hint(self):
-        return _max_over_channels(self.rho_s)
+        return max_over_channels(self.rho_s)
 
 
 # ----------------------------------------------------------------------------- registry entries
@@ -450,7 +363,7 @@ def registry_entries():
         return Param(name, default, lo=0.0, hi=1.0, channels=True, doc=doc)
 
     def expo(default, doc="Phong exponent n (lobe sharpness)"):
-        return Param("exponent", default, lo=0.0, hi=1e6, doc=doc)
+        return Param("exponent", default, lo=0.0, hi=EXPONENT_MAX, doc=doc)
 
     return [
         Entry(

@@ -20,22 +20,19 @@ The weight of a successful sample is ``rho_s cos_i 2 pi / ((n + 1) N)``.
 
 from __future__ import annotations
 
-import math
-
 import equinox as eqx
 import jax.numpy as jnp
 
 from brdf_fit.core.frame import frame_from_normal, mirror, to_world
-from brdf_fit.core.numerics import safe_pow
-from brdf_fit.core.params import Entry, Param
+from brdf_fit.core.numerics import INV_TWO_PI, safe_pow
+from brdf_fit.core.params import Channels, Entry, Param, Scalar, bounded
 from brdf_fit.core.phong_normaliser import ARVO_MAX_N, METHODS, normaliser
 from brdf_fit.core.validate import check_param
 from brdf_fit.core.warp import sample_power_cosine
-from brdf_fit.models._base import AbstractBRDF, BRDFSample, sample_weight, expand_channels
+from brdf_fit.models._base import AbstractBRDF, QuadratureLobe, expand_channels
+from brdf_fit.models._lobes import EXPONENT_MAX, finish_sample, max_over_channels, upper
 
 __all__ = ["EnergyNormalizedPhong", "registry_entries"]
-
-INV_2PI = 0.5 / math.pi
 
 
 class EnergyNormalizedPhong(AbstractBRDF):
@@ -45,8 +42,8 @@ class EnergyNormalizedPhong(AbstractBRDF):
     exponent up to ``max_n``, rounded; not differentiable in it).
     """
 
-    rho_s: object = 0.8
-    exponent: object = 50.0
+    rho_s: Channels = bounded(0.8, lo=0.0, hi=1.0, channels=True)
+    exponent: Scalar = bounded(50.0, lo=0.0, hi=EXPONENT_MAX)
     method: str = eqx.field(static=True, default="mallett-yuksel")
     max_n: int = eqx.field(static=True, default=ARVO_MAX_N)
 
@@ -75,32 +72,30 @@ class EnergyNormalizedPhong(AbstractBRDF):
         return normaliser(jnp.where(ok, co, 1.0), self.exponent, self.method, self.max_n)
 
     def eval(self, wi, wo):
-        ok = (wi[..., 2] > 0) & (wo[..., 2] > 0)
+        ok = upper(wi, wo)
         n = self._n()
         lobe = safe_pow(self._cos_lobe(wi, wo), n) / self.normaliser(wo)
         lobe = jnp.where(ok, lobe, 0.0)
         return expand_channels(lobe, self.channels()) * self.rho_s
 
     def pdf(self, wi, wo):
-        ok = (wi[..., 2] > 0) & (wo[..., 2] > 0)
+        ok = upper(wi, wo)
         n = self._n()
-        p = (n + 1.0) * INV_2PI * safe_pow(self._cos_lobe(wi, wo), n)
+        p = (n + 1.0) * INV_TWO_PI * safe_pow(self._cos_lobe(wi, wo), n)
         return jnp.where(ok, p, 0.0)
 
     def sample(self, wo, uc, u):
         local = sample_power_cosine(u, self._n())
         t, b, r = frame_from_normal(mirror(wo))
-        wi = to_world(local, t, b, r)
-        pdf = self.pdf(wi, wo)
-        return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(self, wi, wo, pdf))
+        return finish_sample(self, to_world(local, t, b, r), wo)
 
-    def quadrature_lobe(self):
+    def quadrature_lobe(self) -> QuadratureLobe:
         """Quadrature hint (:func:`brdf_fit.verify.albedo.lobe_rule`): a power-cosine lobe about the
         mirror direction."""
-        return "mirror", self._n()
+        return QuadratureLobe("mirror", self._n())
 
     def selection_hint(self):
-        return jnp.max(jnp.asarray(self.rho_s))
+        return max_over_channels(self.rho_s)
 
 
 def registry_entries():

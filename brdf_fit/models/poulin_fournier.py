@@ -71,17 +71,21 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from brdf_fit.core.numerics import safe_div, safe_pow, safe_sqrt
-from brdf_fit.core.params import Entry, Param
-from brdf_fit.core.validate import ParameterError, check_param, concrete
-from brdf_fit.core.warp import sample_cosine_hemisphere
-from brdf_fit.models._base import AbstractBRDF, BRDFSample, sample_weight, expand_channels
-from brdf_fit.models.phong import _cos_alpha_r, _sample_lobe_about_mirror, _sanitize_wo
+from brdf_fit.core.numerics import INV_PI, INV_TWO_PI, safe_div, safe_pow, safe_sqrt
+from brdf_fit.core.params import Channels, Entry, Param, Scalar, bounded
+from brdf_fit.core.validate import ParameterError, check_param, check_scalar
+from brdf_fit.models._base import AbstractBRDF, expand_channels
+from brdf_fit.models._lobes import (
+    lobe_probability,
+    max_over_channels,
+    power_cosine_pdf,
+    sample_diffuse_or_mirror,
+    sanitize_direction,
+    upper,
+)
 
 __all__ = ["PoulinFournier", "registry_entries", "visible_interval"]
 
-INV_PI = 1.0 / math.pi
-INV_TWO_PI = 0.5 / math.pi
 HALF_PI = 0.5 * math.pi
 #: Default node count (two Gauss-Legendre panels of 32): measured error vs 1024 nodes in the tests.
 N_NODES = 64
@@ -128,10 +132,10 @@ class PoulinFournier(AbstractBRDF):
     the Gauss-Legendre node count over the cross-section.
     """
 
-    kd: object = 0.3
-    ks: object = 0.5
-    exponent: object = 10.0
-    spacing: object = 1.5
+    kd: Channels = bounded(0.3, lo=0.0, hi=1.0, channels=True)
+    ks: Channels = bounded(0.5, lo=0.0, hi=1.0, channels=True)
+    exponent: Scalar = bounded(10.0, lo=0.0, hi=100.0)
+    spacing: Scalar = bounded(1.5, lo=0.05, hi=2.0)
     n_nodes: int = eqx.field(static=True, default=N_NODES)
 
     anisotropic: ClassVar[bool] = True
@@ -143,10 +147,7 @@ class PoulinFournier(AbstractBRDF):
         check_param("exponent", self.exponent, lo=0.0, owner=owner)
         check_param("spacing", self.spacing, lo=0.0, hi=2.0, lo_open=True, owner=owner)
         for name in ("exponent", "spacing"):
-            v = concrete(getattr(self, name))
-            if v is not None and v.dtype != object and v.ndim != 0:
-                raise ParameterError(f"{owner}: parameter {name!r} must be a scalar, got "
-                                     f"shape {v.shape}")
+            check_scalar(name, getattr(self, name), owner)
         if self.n_nodes < 2 or self.n_nodes % 2:
             raise ParameterError(f"{owner}: n_nodes must be even and >= 2, got {self.n_nodes}")
 
@@ -203,18 +204,13 @@ class PoulinFournier(AbstractBRDF):
         return i_d, jnp.sum(cmi * cmo * wts * lobe, axis=-1)
 
     def _p_d(self):
-        hd = jnp.max(jnp.asarray(self.kd))
-        hs = jnp.max(jnp.asarray(self.ks))
-        tot = hd + hs
-        return jnp.where(tot > 0, safe_div(hd, tot), 1.0)
+        return lobe_probability(max_over_channels(self.kd), max_over_channels(self.ks))
 
     # ------------------------------------------------------------------ interface
 
     def eval(self, wi, wo):
-        ok = (wi[..., 2] > 0) & (wo[..., 2] > 0)
-        n = jnp.zeros_like(wi).at[..., 2].set(1.0)
-        wis = jnp.where(ok[..., None], wi, n)
-        wos = jnp.where(ok[..., None], wo, n)
+        ok = upper(wi, wo)
+        wis, wos = sanitize_direction(wi, ok), sanitize_direction(wo, ok)
         i_d, i_s = self._integrals(wis, wos)
         norm = 1.0 / (self.spacing * wis[..., 2] * wos[..., 2])
         ch = self.channels()
@@ -223,23 +219,18 @@ class PoulinFournier(AbstractBRDF):
         return jnp.where(expand_channels(ok, ch), val, 0.0)
 
     def pdf(self, wi, wo):
-        ok = (wi[..., 2] > 0) & (wo[..., 2] > 0)
-        e = self.exponent
-        lobe = (e + 1.0) * INV_TWO_PI * safe_pow(_cos_alpha_r(wi, wo), e)
+        # the density of sample_diffuse_or_mirror, written (p_d cos) / pi (diffuse_mirror_pdf
+        # has p_d (cos / pi): the same up to round-off, kept as it was)
         p_d = self._p_d()
-        return jnp.where(ok, p_d * jnp.maximum(wi[..., 2], 0.0) * INV_PI + (1.0 - p_d) * lobe,
-                         0.0)
+        lobe = power_cosine_pdf(wi, wo, self.exponent)
+        return jnp.where(upper(wi, wo),
+                         p_d * jnp.maximum(wi[..., 2], 0.0) * INV_PI + (1.0 - p_d) * lobe, 0.0)
 
     def sample(self, wo, uc, u):
-        wos, ok = _sanitize_wo(wo)
-        wd = sample_cosine_hemisphere(u)
-        ws = _sample_lobe_about_mirror(wos, u, self.exponent)
-        wi = jnp.where((uc < self._p_d())[..., None], wd, ws)
-        pdf = jnp.where(ok, self.pdf(wi, wo), 0.0)
-        return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(self, wi, wo, pdf))
+        return sample_diffuse_or_mirror(self, wo, uc, u, self.exponent, self._p_d())
 
     def selection_hint(self):
-        return jnp.max(jnp.asarray(self.kd)) + jnp.max(jnp.asarray(self.ks))
+        return max_over_channels(self.kd) + max_over_channels(self.ks)
 
 
 # ----------------------------------------------------------------------------- registry entries

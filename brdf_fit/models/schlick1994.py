@@ -71,16 +71,15 @@ from typing import ClassVar
 
 import jax.numpy as jnp
 
-from brdf_fit.core.frame import join, split
-from brdf_fit.core.numerics import pow5, safe_normalize3, safe_sqrt
-from brdf_fit.core.params import Entry, Param
-from brdf_fit.core.validate import ParameterError, check_param, concrete
-from brdf_fit.core.warp import sample_cosine_hemisphere
-from brdf_fit.models._base import AbstractBRDF, BRDFSample, sample_weight, expand_channels
+from brdf_fit.core.frame import join
+from brdf_fit.core.numerics import INV_PI, pow5, safe_sqrt
+from brdf_fit.core.params import Channels, Entry, Param, Scalar, bounded
+from brdf_fit.core.validate import check_param, check_scalar
+from brdf_fit.models._base import AbstractBRDF, QuadratureLobe, expand_channels
+from brdf_fit.models._lobes import half_angles, max_over_channels, sample_diffuse_or_half
 
 __all__ = ["Schlick1994", "registry_entries"]
 
-INV_PI = 1.0 / math.pi
 #: Squared length of the horizontal part of ``h`` below which the azimuth of ``h`` counts as
 #: undefined (``A = 1``, ``x = 0``). The derivative of ``h.x/|h_xy|`` carries ``q^(-3/2)``:
 #: above 1e-16 it stays below 1e24, so float32 gradients (max 3e38) keep a margin of 1e14 for the
@@ -96,9 +95,7 @@ _REFERENCE = (
 
 def _check_scalar(name, value, owner):
     check_param(name, value, lo=0.0, hi=1.0, lo_open=True, owner=owner)
-    v = concrete(value)
-    if v is not None and v.dtype != object and v.ndim != 0:
-        raise ParameterError(f"{owner}: parameter {name!r} must be a scalar, got shape {v.shape}")
+    check_scalar(name, value, owner)
 
 
 class Schlick1994(AbstractBRDF):
@@ -114,9 +111,9 @@ class Schlick1994(AbstractBRDF):
     #: the checks look at three view azimuths (brdf_fit.checks._views)
     anisotropic: ClassVar[bool] = True
 
-    f0: object = 0.5
-    r: object = 0.1
-    p: object = 1.0
+    f0: Channels = bounded(0.5, lo=0.0, hi=1.0, channels=True)
+    r: Scalar = bounded(0.1, lo=0.0, hi=1.0, lo_open=True)
+    p: Scalar = bounded(1.0, lo=0.0, hi=1.0, lo_open=True)
 
     def __check_init__(self):
         owner = "Schlick1994"
@@ -132,18 +129,9 @@ class Schlick1994(AbstractBRDF):
     @staticmethod
     def _geometry(wi, wo):
         """``(ok, hx, hy, t, q, u, cl, cv)`` sanitised to ``wi = wo = n`` where ``ok`` is False;
-        ``q = hx^2 + hy^2 = 1 - t^2`` without cancellation."""
-        ix, iy, iz = split(wi)
-        ox, oy, oz = split(wo)
-        hx, hy, hz, hok = safe_normalize3(ix + ox, iy + oy, iz + oz)
-        u = ix * hx + iy * hy + iz * hz
-        ok = (iz > 0) & (oz > 0) & hok & (u > 0) & (hz > 0)
-        hx = jnp.where(ok, hx, 0.0)
-        hy = jnp.where(ok, hy, 0.0)
-        t = jnp.where(ok, hz, 1.0)
-        u = jnp.where(ok, u, 1.0)
-        cl = jnp.where(ok, iz, 1.0)
-        cv = jnp.where(ok, oz, 1.0)
+        ``q = hx^2 + hy^2 = 1 - t^2`` without cancellation
+        (:func:`~brdf_fit.models._lobes.half_angles`; ``u = wi.h``)."""
+        ok, hx, hy, t, u, cl, cv = half_angles(wi, wo)
         return ok, hx, hy, t, hx * hx + hy * hy, u, cl, cv
 
     def _Z(self, t, q):
@@ -212,25 +200,15 @@ class Schlick1994(AbstractBRDF):
         return join(sin_t * sx, sin_t * sy, cos_t)
 
     def sample(self, wo, uc, u):
-        ok_o = wo[..., 2] > 0
-        n = jnp.zeros_like(wo).at[..., 2].set(1.0)
-        wos = jnp.where(ok_o[..., None], wo, n)
-        h = self._sample_h(u)
-        d = jnp.sum(wos * h, axis=-1, keepdims=True)
-        ws = 2.0 * d * h - wos
-        x, y, z, _ = safe_normalize3(ws[..., 0], ws[..., 1], ws[..., 2])
-        wd = sample_cosine_hemisphere(u)
-        wi = jnp.where((uc < self._p_d())[..., None], wd, join(x, y, z))
-        pdf = jnp.where(ok_o, self.pdf(wi, wo), 0.0)
-        return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(self, wi, wo, pdf))
+        return sample_diffuse_or_half(self, wo, uc, u, self._sample_h(u), self._p_d())
 
-    def quadrature_lobe(self):
+    def quadrature_lobe(self) -> QuadratureLobe:
         """Quadrature hint (:func:`brdf_fit.verify.albedo.lobe_rule`): a half-vector lobe of width
         ``sqrt(r)/4`` (see the module docstring for why a quarter of the GGX width)."""
-        return "half", 0.25 * jnp.sqrt(jnp.asarray(self.r))
+        return QuadratureLobe("half", 0.25 * jnp.sqrt(jnp.asarray(self.r)))
 
     def selection_hint(self):
-        return jnp.max(jnp.asarray(self.f0))
+        return max_over_channels(self.f0)
 
 
 # ----------------------------------------------------------------------------- registry entries

@@ -59,17 +59,21 @@ import equinox as eqx
 import jax.numpy as jnp
 
 from brdf_fit.core.frame import split
-from brdf_fit.core.numerics import safe_div, safe_hypot, safe_pow
-from brdf_fit.core.params import Entry, Param
-from brdf_fit.core.validate import ParameterError, check_param, concrete
-from brdf_fit.core.warp import sample_cosine_hemisphere
-from brdf_fit.models._base import AbstractBRDF, BRDFSample, sample_weight, expand_channels
-from brdf_fit.models.phong import _cos_alpha_r, _sample_lobe_about_mirror, _sanitize_wo
+from brdf_fit.core.numerics import INV_PI, safe_hypot, safe_pow
+from brdf_fit.core.params import Channels, Entry, Param, Scalar, bounded
+from brdf_fit.core.validate import ParameterError, check_param, check_scalar
+from brdf_fit.models._base import AbstractBRDF, QuadratureLobe, expand_channels
+from brdf_fit.models._lobes import (
+    cos_alpha_r,
+    lobe_probability,
+    power_cosine_pdf,
+    sample_diffuse_or_mirror,
+    sanitize_direction,
+    upper,
+)
 
 __all__ = ["Strauss", "registry_entries", "strauss_fresnel", "strauss_shadow"]
 
-INV_PI = 1.0 / math.pi
-INV_TWO_PI = 0.5 / math.pi
 #: Strauss's constants (his "kf", "ks", "kj"; the 3ds Max SDK calls them magic constants)
 KF = 1.12
 KS = 1.01
@@ -109,10 +113,10 @@ class Strauss(AbstractBRDF):
     ``transparency`` scalars in [0, 1]; ``kf``, ``ks`` Strauss's constants (static).
     """
 
-    color: object = 0.8
-    smoothness: object = 0.6
-    metalness: object = 0.3
-    transparency: object = 0.0
+    color: Channels = bounded(0.8, lo=0.0, hi=1.0, channels=True)
+    smoothness: Scalar = bounded(0.6, lo=0.0, hi=1.0)
+    metalness: Scalar = bounded(0.3, lo=0.0, hi=1.0)
+    transparency: Scalar = bounded(0.0, lo=0.0, hi=1.0)
     kf: float = eqx.field(static=True, default=KF)
     ks: float = eqx.field(static=True, default=KS)
 
@@ -122,10 +126,7 @@ class Strauss(AbstractBRDF):
         for name in ("smoothness", "metalness", "transparency"):
             value = getattr(self, name)
             check_param(name, value, lo=0.0, hi=1.0, owner=owner)
-            v = concrete(value)
-            if v is not None and v.dtype != object and v.ndim != 0:
-                raise ParameterError(f"{owner}: parameter {name!r} must be a scalar, got "
-                                     f"shape {v.shape}")
+            check_scalar(name, value, owner)
         if not (self.kf > 1.0 and self.ks > 1.0):
             raise ParameterError(f"{owner}: kf and ks must be > 1 (poles outside [0, 1]), got "
                                  f"kf = {self.kf}, ks = {self.ks}")
@@ -147,16 +148,13 @@ class Strauss(AbstractBRDF):
         hd = math.pi * d * rd * cmax
         hs = 2.0 * math.pi * jnp.minimum(1.0, 2.0 * rn + KJ) * jnp.maximum(1.0, cmax) / (
             self.exponent() + 1.0)
-        tot = hd + hs
-        return jnp.where(tot > 0, safe_div(hd, tot), 1.0)
+        return lobe_probability(hd, hs)
 
     # ------------------------------------------------------------------ interface
 
     def eval(self, wi, wo):
-        ok = (wi[..., 2] > 0) & (wo[..., 2] > 0)
-        n = jnp.zeros_like(wi).at[..., 2].set(1.0)
-        wis = jnp.where(ok[..., None], wi, n)
-        wos = jnp.where(ok[..., None], wo, n)
+        ok = upper(wi, wo)
+        wis, wos = sanitize_direction(wi, ok), sanitize_direction(wo, ok)
         cl = wis[..., 2]
         x_l, x_v = _normalised_angle(wis), _normalised_angle(wos)
         fr = strauss_fresnel(x_l, self.kf)
@@ -165,30 +163,25 @@ class Strauss(AbstractBRDF):
         rj = jnp.minimum(1.0, rn + (rn + KJ) * j)
         ch = self.channels()
         cs = 1.0 + self.metalness * expand_channels(1.0 - fr, ch) * (self.color - 1.0)
-        lobe = safe_pow(_cos_alpha_r(wis, wos), self.exponent()) * rj / cl
+        lobe = safe_pow(cos_alpha_r(wis, wos), self.exponent()) * rj / cl
         val = d * rd * self.color + cs * expand_channels(lobe, ch)
         return jnp.where(expand_channels(ok, ch), val, 0.0)
 
     def pdf(self, wi, wo):
-        ok = (wi[..., 2] > 0) & (wo[..., 2] > 0)
-        n = self.exponent()
-        lobe = (n + 1.0) * INV_TWO_PI * safe_pow(_cos_alpha_r(wi, wo), n)
+        # the density of sample_diffuse_or_mirror, written (p_d cos) / pi (diffuse_mirror_pdf
+        # has p_d (cos / pi): the same up to round-off, kept as it was)
         p_d = self._p_d()
-        return jnp.where(ok, p_d * jnp.maximum(wi[..., 2], 0.0) * INV_PI + (1.0 - p_d) * lobe,
-                         0.0)
+        lobe = power_cosine_pdf(wi, wo, self.exponent())
+        return jnp.where(upper(wi, wo),
+                         p_d * jnp.maximum(wi[..., 2], 0.0) * INV_PI + (1.0 - p_d) * lobe, 0.0)
 
     def sample(self, wo, uc, u):
-        wos, ok = _sanitize_wo(wo)
-        wd = sample_cosine_hemisphere(u)
-        ws = _sample_lobe_about_mirror(wos, u, self.exponent())
-        wi = jnp.where((uc < self._p_d())[..., None], wd, ws)
-        pdf = jnp.where(ok, self.pdf(wi, wo), 0.0)
-        return BRDFSample(wi=wi, pdf=pdf, weight=sample_weight(self, wi, wo, pdf))
+        return sample_diffuse_or_mirror(self, wo, uc, u, self.exponent(), self._p_d())
 
-    def quadrature_lobe(self):
+    def quadrature_lobe(self) -> QuadratureLobe:
         """Quadrature hint (:func:`brdf_fit.verify.albedo.lobe_rule`): the power-cosine lobe about
         the mirror direction with Strauss's exponent."""
-        return "mirror", self.exponent()
+        return QuadratureLobe("mirror", self.exponent())
 
     def selection_hint(self):
         d, rd, rn = self._terms()

@@ -41,11 +41,12 @@ This is our own construction: the paper gives no
 sampler, and public implementations (PiscisRT ``BRDF_TS``, shrimp) replace the Gaussian-angle D by
 Beckmann's, which is the registry's "torrance-sparrow" entry.
 
-The distribution :class:`GaussianAngle` is duck-typed to the interface
-:class:`brdf_fit.models.MicrofacetBRDF` needs with V-cavity masking (``D``, ``sample_normal``,
-``pdf_normal``, ``supports_visible``); ``alpha_x``/``alpha_y`` let
-:func:`brdf_fit.verify.albedo.lobe_widths` and :mod:`brdf_fit.checks` (ndf-normalisation,
-weak and full white furnace) treat it as a lobe of that width. It has no Smith ``Lambda``.
+The distribution :class:`GaussianAngle` is an
+:class:`~brdf_fit.core.microfacet.AbstractDistribution` usable with V-cavity masking (``D``,
+``sample_normal``; ``supports_visible`` is False); its ``widths()`` let
+:func:`brdf_fit.verify.albedo.lobe_widths` and :mod:`brdf_fit.verify.checks` (ndf-normalisation,
+weak and full white furnace) treat it as a lobe of that width. It has no Smith ``Lambda`` (``P``
+and ``sample_visible`` raise).
 """
 
 from __future__ import annotations
@@ -53,15 +54,14 @@ from __future__ import annotations
 import math
 from typing import ClassVar
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from brdf_fit.core.fresnel import DielectricFresnel
-from brdf_fit.core.microfacet import VCavity
+from brdf_fit.core.microfacet import AbstractDistribution, VCavity
 from brdf_fit.core.numerics import ALPHA_MIN, safe_sqrt
-from brdf_fit.core.params import Entry, Param
+from brdf_fit.core.params import Entry, Param, Scalar, bounded
 from brdf_fit.core.validate import check_param
 from brdf_fit.models.lambert import Lambert
 from brdf_fit.models.microfacet_brdf import MicrofacetBRDF
@@ -134,7 +134,7 @@ def theta_squared(mx, my, mz):
     return jnp.where(small, series, jnp.arctan(jnp.sqrt(Ts)) ** 2)
 
 
-class GaussianAngle(eqx.Module):
+class GaussianAngle(AbstractDistribution):
     """Torrance & Sparrow's 1967 facet distribution, Gaussian in the facet angle, normalised on
     projected area (module docstring)::
 
@@ -144,7 +144,7 @@ class GaussianAngle(eqx.Module):
     distributions; ``alpha_y`` is None (isotropic).
     """
 
-    alpha_x: object = 0.3
+    alpha_x: Scalar = bounded(0.3, lo=0.0, hi=1.0, lo_open=True)
     alpha_y: ClassVar[None] = None
     supports_visible: ClassVar[bool] = False
 
@@ -166,9 +166,16 @@ class GaussianAngle(eqx.Module):
         th2 = theta_squared(jnp.where(pos, mx, 0.0), jnp.where(pos, my, 0.0), mzs)
         return jnp.where(pos, self.b() * jnp.exp(-th2 / (s * s)), 0.0)
 
-    def pdf_normal(self, mx, my, mz):
-        """Density of :meth:`sample_normal`: ``D(m) (n.m)`` per solid angle of ``m``."""
-        return self.D(mx, my, mz) * jnp.maximum(mz, 0.0)
+    def P(self, wx, wy, wz):
+        raise NotImplementedError("GaussianAngle has no Smith Lambda; use VCavity masking")
+
+    def sample_visible(self, wx, wy, wz, u1, u2):
+        raise NotImplementedError("GaussianAngle has no visible-normal sampler; use VCavity "
+                                  "masking (V-cavity visible normals) or sample_normal")
+
+    def widths(self):
+        s = self._sigma()
+        return s, s
 
     def sample_normal(self, u1, u2):
         """``m ~ D(m)(n.m)``: ``theta = sigma t`` with ``C(t) = u1`` solved by bracketed Newton

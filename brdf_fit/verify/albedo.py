@@ -14,7 +14,6 @@ import jax
 import jax.numpy as jnp
 
 from brdf_fit.core.microfacet import Beckmann, BlinnPhongNDF
-from brdf_fit.core.numerics import ALPHA_MIN
 from brdf_fit.core.quadrature import (
     HALFVECTOR_N_PHI,
     HALFVECTOR_N_THETA,
@@ -24,7 +23,7 @@ from brdf_fit.core.quadrature import (
     halfvector_rule,
     mirror_lobe_rule,
 )
-from brdf_fit.models import Lambert, MicrofacetBRDF, Mixture, Scaled
+from brdf_fit.models import Lambert, MicrofacetBRDF
 from brdf_fit.models._base import expand_channels
 
 __all__ = [
@@ -48,29 +47,21 @@ _LAMBERT_RULE = (2, 2)
 GAUSSIAN_N_THETA = 64
 
 
-def _default_n_theta(lobe) -> int:
-    dist = getattr(lobe, "distribution", None)
-    return GAUSSIAN_N_THETA if isinstance(dist, Beckmann | BlinnPhongNDF) else HALFVECTOR_N_THETA
+def _default_n_theta(lobe: MicrofacetBRDF) -> int:
+    gaussian = isinstance(lobe.distribution, Beckmann | BlinnPhongNDF)
+    return GAUSSIAN_N_THETA if gaussian else HALFVECTOR_N_THETA
 
 
-def lobe_widths(lobe):
+def lobe_widths(lobe: MicrofacetBRDF):
     """``(alpha_x, alpha_y)`` of a :class:`~brdf_fit.models.MicrofacetBRDF` lobe as the lobe
-    evaluates them (clamped below at ``ALPHA_MIN``), or None if its distribution has no width.
+    evaluates them (clamped below at ``ALPHA_MIN``): its distribution's
+    :meth:`~brdf_fit.core.microfacet.AbstractDistribution.widths`.
 
     GGX and Beckmann: their ``alpha_x`` and ``alpha_y`` (``alpha_y = alpha_x`` when None);
     Blinn-Phong with exponent ``n``: the equivalent Beckmann width ``sqrt(2 / (n + 2))`` (Walter
     et al. 2007, section 5.2), e.g. 0.0141 for ``n = 1e4``. May return tracers.
     """
-    dist = getattr(lobe, "distribution", None)
-    if hasattr(dist, "exponent"):
-        a = jnp.sqrt(2.0 / (jnp.asarray(dist.exponent) + 2.0))
-        ax = ay = a
-    elif hasattr(dist, "alpha_x"):
-        ax = jnp.asarray(dist.alpha_x)
-        ay = ax if getattr(dist, "alpha_y", None) is None else jnp.asarray(dist.alpha_y)
-    else:
-        return None
-    return jnp.maximum(ax, ALPHA_MIN), jnp.maximum(ay, ALPHA_MIN)
+    return lobe.distribution.widths()
 
 
 def lobe_rule(
@@ -91,21 +82,18 @@ def lobe_rule(
     rule otherwise. Batched ``wo`` gives a batched rule for microfacet lobes only.
     ``n_theta=None``: 48 (:data:`HALFVECTOR_N_THETA`), 64 (:data:`GAUSSIAN_N_THETA`) for Beckmann
     and Blinn-Phong lobes."""
-    hint = getattr(lobe, "quadrature_lobe", None)
-    if hint is not None:
-        kind, value = hint()
-        if kind == "mirror":
-            return mirror_lobe_rule(wo, value, dtype=dtype)
-        if kind == "half":
-            n_theta = GAUSSIAN_N_THETA if n_theta is None else n_theta
-            ax, ay = value if isinstance(value, (tuple, list)) else (value, None)
-            return halfvector_rule(wo, ax, ay, n_theta=n_theta, n_phi=n_phi, dtype=dtype)
+    kind, value = lobe.quadrature_lobe()
+    if kind == "mirror":
+        return mirror_lobe_rule(wo, value, dtype=dtype)
+    if kind == "half":
+        n_theta = GAUSSIAN_N_THETA if n_theta is None else n_theta
+        ax, ay = value if isinstance(value, (tuple, list)) else (value, None)
+        return halfvector_rule(wo, ax, ay, n_theta=n_theta, n_phi=n_phi, dtype=dtype)
+    if kind != "none":
         raise ValueError(f"{type(lobe).__name__}.quadrature_lobe() returned unknown kind {kind!r}")
     if isinstance(lobe, MicrofacetBRDF):
-        widths = lobe_widths(lobe)
-        if widths is not None:
-            n_theta = _default_n_theta(lobe) if n_theta is None else n_theta
-            return halfvector_rule(wo, *widths, n_theta=n_theta, n_phi=n_phi, dtype=dtype)
+        n_theta = _default_n_theta(lobe) if n_theta is None else n_theta
+        return halfvector_rule(wo, *lobe_widths(lobe), n_theta=n_theta, n_phi=n_phi, dtype=dtype)
     if isinstance(lobe, Lambert):
         return cosine_rule(*_LAMBERT_RULE, dtype=dtype)
     return gauss_legendre_hemisphere(*generic, dtype=dtype)
@@ -125,25 +113,19 @@ def _rule_sum(lobe, directions, weights, wo):
 
 
 def _albedo(model, wo, opts) -> tuple[jax.Array, int]:
-    ch = model.channels()
-    if isinstance(model, Scaled):
-        e, n = _albedo(model.lobe, wo, opts)
-        if ch is not None and model.lobe.channels() is None:
-            e = expand_channels(e, ch)
-        return model.scale * e, n
-    if isinstance(model, Mixture):
+    if model.is_compound():  # Mixture, Scaled: sum_j scale_j E_j, lobe by lobe
+        ch = model.channels()
         total, n_total = None, 0
-        for lobe in model.lobes:
+        for scale, lobe in model.terms():
             e, n = _albedo(lobe, wo, opts)
             if ch is not None and lobe.channels() is None:
                 e = expand_channels(e, ch)
+            e = scale * e  # a Mixture's 1.0 leaves e bit for bit
             total = e if total is None else total + e
             n_total += n
         return total, n_total
     if model.is_delta:
-        if not hasattr(model, "albedo"):
-            raise TypeError(f"delta lobe {type(model).__name__} has no closed-form albedo(wo)")
-        return model.albedo(wo), 0
+        return model.delta_albedo(wo), 0
     rule = lobe_rule(model, wo, dtype=opts["dtype"], **opts["rule"])
     # Python-float parameters as (weakly typed) arrays: traced, not static, under filter_jit
     lobe = jax.tree_util.tree_map(lambda x: jnp.asarray(x) if isinstance(x, float) else x, model)

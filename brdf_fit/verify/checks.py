@@ -44,8 +44,9 @@ from brdf_fit import registry
 from brdf_fit.core import quadrature
 from brdf_fit.core.fresnel import ConstantFresnel
 from brdf_fit.core.microfacet import VCavity, vcavity_pdf_visible
-from brdf_fit.models import MicrofacetBRDF, Mixture, Scaled
-from brdf_fit.models._base import AbstractBRDF, sample_weight
+from brdf_fit.models import MicrofacetBRDF
+from brdf_fit.models._base import AbstractBRDF
+from brdf_fit.models._lobes import sample_weight
 from brdf_fit.verify import albedo
 from brdf_fit.verify.chi2 import chi2_test_brdf
 
@@ -167,24 +168,20 @@ def _na(name, check, why):
 # --------------------------------------------------------------------------- model structure
 
 
-def _lobes(model) -> list[tuple[Any, AbstractBRDF]]:
-    """``[(scale, lobe)]`` with ``model = sum scale * lobe`` (Mixture and Scaled unfolded)."""
-    if isinstance(model, Mixture):
-        return [item for lobe in model.lobes for item in _lobes(lobe)]
-    if isinstance(model, Scaled):
-        return [(model.scale * s, lobe) for s, lobe in _lobes(model.lobe)]
-    return [(1.0, model)]
+def _lobes(model: AbstractBRDF) -> list[tuple[Any, AbstractBRDF]]:
+    """``[(scale, lobe)]`` with ``model = sum scale * lobe`` (compound models unfolded through
+    :meth:`~brdf_fit.models.AbstractBRDF.terms`)."""
+    if not model.is_compound():
+        return [(1.0, model)]
+    return [(scale * s, lobe) for scale, sub in model.terms() for s, lobe in _lobes(sub)]
 
 
-def _pdf_lobes(model) -> list[tuple[Any, AbstractBRDF]]:
-    """``[(probability, lobe)]`` with ``model.pdf = sum p * lobe.pdf``."""
-    if isinstance(model, Mixture):
-        p = model.probabilities()
-        return [(p[j] * q, lobe) for j, sub in enumerate(model.lobes)
-                for q, lobe in _pdf_lobes(sub)]
-    if isinstance(model, Scaled):
-        return _pdf_lobes(model.lobe)
-    return [(1.0, model)]
+def _pdf_lobes(model: AbstractBRDF) -> list[tuple[Any, AbstractBRDF]]:
+    """``[(probability, lobe)]`` with ``model.pdf = sum p * lobe.pdf`` (through
+    :meth:`~brdf_fit.models.AbstractBRDF.pdf_terms`)."""
+    if not model.is_compound():
+        return [(1.0, model)]
+    return [(p * q, lobe) for p, sub in model.pdf_terms() for q, lobe in _pdf_lobes(sub)]
 
 
 def _microfacet_lobes(model) -> list[MicrofacetBRDF]:
@@ -197,19 +194,18 @@ def _unit(cos, phi=0.3):
 
 
 def _views(model, cosines) -> list[np.ndarray]:
-    """View directions: each cosine at one azimuth, and at three for anisotropic lobes (a
-    microfacet lobe with ``alpha_y``, or any lobe whose class sets ``anisotropic = True``)."""
-    aniso = any(getattr(m.distribution, "alpha_y", None) is not None
-                for m in _microfacet_lobes(model))
-    aniso = aniso or any(bool(getattr(lobe, "anisotropic", False)) for _, lobe in _lobes(model))
+    """View directions: each cosine at one azimuth, and at three for anisotropic models
+    (:meth:`~brdf_fit.models.AbstractBRDF.is_anisotropic`: a microfacet lobe with ``alpha_y``, or
+    a lobe whose class sets ``anisotropic = True``)."""
+    aniso = model.is_anisotropic()
     phis = (0.3, 0.3 + math.pi / 4, 0.3 + math.pi / 2) if aniso else (0.3,)
     return [_unit(c, p) for c in cosines for p in phis]
 
 
 def _rule_for(lobe, wo) -> quadrature.Rule:
     """Quadrature rule over wi adapted to one lobe (:func:`brdf_fit.verify.albedo.lobe_rule`);
-    wrappers such as the negative controls get the rule of the lobe they wrap."""
-    while hasattr(lobe, "inner"):
+    the negative controls get the rule of the lobe they wrap."""
+    while isinstance(lobe, _AbstractNegativeControl):
         lobe = lobe.inner
     return albedo.lobe_rule(lobe, jnp.asarray(wo))
 
@@ -646,7 +642,12 @@ def run_checks(
 # --------------------------------------------------------------------------- negative controls
 
 
-class PdfScaled(AbstractBRDF):
+class _AbstractNegativeControl(AbstractBRDF):
+    """A model that wraps a model ``inner`` (a field of each concrete control) and breaks one
+    property on purpose (abstract)."""
+
+
+class PdfScaled(_AbstractNegativeControl):
     """Negative control: reports ``factor * pdf`` (sampler unchanged)."""
 
     inner: AbstractBRDF
@@ -663,7 +664,7 @@ class PdfScaled(AbstractBRDF):
         return type(s)(wi=s.wi, pdf=self.factor * s.pdf, weight=s.weight / self.factor)
 
 
-class NonReciprocal(AbstractBRDF):
+class NonReciprocal(_AbstractNegativeControl):
     """Negative control: ``f * (1 + strength (cos_i - cos_o))`` (positive, not symmetric)."""
 
     inner: AbstractBRDF
@@ -683,7 +684,7 @@ class NonReciprocal(AbstractBRDF):
         return type(s)(wi=s.wi, pdf=s.pdf, weight=sample_weight(self, s.wi, wo, s.pdf))
 
 
-class Overbright(AbstractBRDF):
+class Overbright(_AbstractNegativeControl):
     """Negative control: ``factor * f`` with the same sampler (reflects more than it receives)."""
 
     inner: AbstractBRDF
@@ -700,7 +701,7 @@ class Overbright(AbstractBRDF):
         return type(s)(wi=s.wi, pdf=s.pdf, weight=self.factor * s.weight)
 
 
-class OverweightSampler(AbstractBRDF):
+class OverweightSampler(_AbstractNegativeControl):
     """Negative control: ``sample`` returns ``factor`` times the correct weight (eval and pdf
     untouched): a sampler whose weights are biased, also when they have no variance."""
 
@@ -718,7 +719,7 @@ class OverweightSampler(AbstractBRDF):
         return type(s)(wi=s.wi, pdf=s.pdf, weight=self.factor * s.weight)
 
 
-class DriftingSampler(AbstractBRDF):
+class DriftingSampler(_AbstractNegativeControl):
     """Negative control: draws with ``u0 -> u0^(1 + drift)`` but reports the inner pdf and the
     weight computed from it, i.e. a sampler that drifted off its pdf."""
 
