@@ -7,7 +7,8 @@ SmithHeightCorrelated(), ConstantFresnel(1.0))`` (float64), for alpha in {0.001,
 and cos(theta_o) in {0.001, 0.01, 0.5, 1} (view azimuth 0.3 rad). Methods, each at several numbers
 ``N`` of BRDF evaluations per direction:
 
-``halfvector``  :func:`brdf_fit.core.quadrature.halfvector_rule` (``n_theta x n_phi = N``; the default
+``halfvector``  :func:`brdf_fit.core.quadrature.halfvector_rule` (``n_theta x n_phi = N``; the
+                default
                 of :func:`~brdf_fit.verify.albedo.directional_albedo` is 48 x 64 = 3072)
 ``gl-product``  Gauss-Legendre in cos(theta) x periodic trapezoid in phi (``n x 2n = N``), the
                 rule for smooth integrands, for comparison

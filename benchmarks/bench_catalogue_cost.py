@@ -1,5 +1,6 @@
 """Evaluation cost of every registry model relative to Lambert, under ``jax.jit``, in one run;
-side by side with the relative costs Montes & Urena (2012) published (:mod:`brdf_fit.verify.catalogue`).
+side by side with the relative costs Montes & Urena (2012) published
+(:mod:`brdf_fit.verify.catalogue`).
 
     python benchmarks/bench_catalogue_cost.py [--n 65536] [--rounds 15] [--float32] [--out DIR]
 
@@ -41,7 +42,7 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_eval import _loadavg, hemisphere_directions, machine_info  # noqa: E402
 
-from brdf_fit import registry
+from brdf_fit import registry  # noqa: E402
 from brdf_fit.verify import catalogue  # noqa: E402
 
 
@@ -58,8 +59,8 @@ def main(argv=None) -> int:
     ap.add_argument("--float32", action="store_true", help="float32 arrays (default float64)")
     ap.add_argument("--out", default=str(Path(__file__).resolve().parent / "results"))
     ap.add_argument("--no-package-data", dest="write_package_data", action="store_false",
-                    help="do not copy the JSON to brdf_fit/resources/catalogue_cost.json (which the "
-                         "README's catalogue table reads)")
+                    help="do not copy the JSON to brdf_fit/resources/catalogue_cost.json "
+                         "(which the README's catalogue table reads)")
     args = ap.parse_args(argv)
     dtype = jnp.float32 if args.float32 else jnp.float64
     info = machine_info()

@@ -10,23 +10,23 @@ free; per problem ``--samples`` random direction pairs (cos(theta) uniform in [0
 uniform), truth ``alpha`` log-uniform in [0.05, 0.8] and ``f0`` uniform in [0.02, 1] per
 channel, values times ``exp(0.01 N(0, 1))`` (1% lognormal noise), all seeded. Every fit uses
 the ``log`` metric and the same unconstrained parameterisation
-(:class:`brdf_fit.fitting.single.Transform`). Times are medians of ``--repeats`` warm calls (fit_batch)
-or passes over the subset (scipy), all reported in the JSON.
+(:class:`brdf_fit.fitting.problem.Transform`). Times are medians of ``--repeats`` warm calls
+(fit_batch) or passes over the subset (scipy), all reported in the JSON.
 
 Timed (float64, x64 on):
 
-``batch``         ``fit_batch`` with its defaults: the coarse grid guess (``brdf_fit.fitting.guess``),
-                  solver ``batch-lm``, the chunk schedule ``CHUNK_SCHEDULE`` (stragglers
-                  compacted between chunks) and groups of ``GROUP`` = 8 lanes, each with its
-                  own while_loop; ``rtol = atol = 1e-8``; warm calls, the first call (with
-                  compilation) reported separately. One device (the groups run one after
-                  another).
+``batch``         ``fit_batch`` with its defaults: the coarse grid guess
+                  (``brdf_fit.fitting.guess``), solver ``batch-lm``, the chunk schedule
+                  ``CHUNK_SCHEDULE`` (stragglers compacted between chunks) and groups of
+                  ``GROUP`` = 8 lanes, each with its own while_loop; ``rtol = atol = 1e-8``;
+                  warm calls, the first call (with compilation) reported separately. One
+                  device (the groups run one after another).
 ``batch-f32``     the same in float32 (``dtype=float32``), tolerances 1e-5.
 variants          on ``--vmap-subset`` problems: one plain vmapped solve (``chunk_steps=None,
                   group=None``), chunks without groups, groups in one chunk, and the default:
                   the cost of "a while_loop runs until its slowest member converges".
 ``scipy-trf`` /   ``scipy.optimize.least_squares(method=...)`` per problem (default tolerances
-``scipy-lm``      ftol = xtol = gtol = 1e-8) on the same residual (``_Problem.residuals``) with
+``scipy-lm``      ftol = xtol = gtol = 1e-8) on the same residual (``FitProblem.residuals``) with
                   a jitted JAX residual and a jitted forward-mode JAX Jacobian (device-resident
                   data; faster than 2-point differences, measured while writing this), timed on a
                   random ``--scipy-subset`` of the problems and extrapolated linearly to all of
@@ -66,7 +66,7 @@ from bench_eval import _loadavg, machine_info  # noqa: E402
 
 from brdf_fit import registry  # noqa: E402
 from brdf_fit.fitting.batch import fit_batch  # noqa: E402
-from brdf_fit.fitting.single import RELATIVE_FLOOR, _Problem, _transform  # noqa: E402
+from brdf_fit.fitting.problem import RELATIVE_FLOOR, FitProblem  # noqa: E402
 
 SEED = 20240611
 SCIPY = ("scipy-trf", "scipy-lm", "scipy-trf-grid", "scipy-lm-grid")
@@ -115,10 +115,7 @@ def warm_batch(wi, wo, v, repeats, **kw):
 
 
 def _ggx_problem():
-    entry = registry.get("ggx")
-    return _Problem(entry, ("alpha", "f0"), ((), (3,)),
-                    (_transform(entry.param("alpha")), _transform(entry.param("f0"))), {},
-                    "log", False)
+    return FitProblem.of("ggx", ("alpha", "f0"), ((), (3,)), metric="log")
 
 
 def to_u(alpha, f0):
@@ -373,10 +370,10 @@ def write_markdown(path, command, info, res):
          f" when these are high; all methods ran in the same process, one after another.",
          f"- {res['problems']} problems, registry `ggx` (alpha + RGB f0 free), {res['samples']} "
          f"direction pairs each, {100 * res['noise']:g}% lognormal noise, metric `log`; seed "
-         f"{res['seed']}. fit_batch starts from its coarse grid guess (`brdf_fit.fitting.guess`, the "
-         "registry defaults among the candidates, included in its time); the scipy loops run "
-         "from the registry defaults (`scipy-trf`, `scipy-lm`) and from the same grid guess "
-         "(`-grid`, guess time not counted)", "",
+         f"{res['seed']}. fit_batch starts from its coarse grid guess "
+         "(`brdf_fit.fitting.guess`, the registry defaults among the candidates, included in "
+         "its time); the scipy loops run from the registry defaults (`scipy-trf`, "
+         "`scipy-lm`) and from the same grid guess (`-grid`, guess time not counted)", "",
          "## Headline", "",
          f"- `fit_batch` float64 (warm): **{b['seconds_warm']:.2f} s** for {res['problems']} "
          f"fits (first call, with compilation: {b['seconds_cold']:.2f} s); converged "

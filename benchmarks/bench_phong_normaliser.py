@@ -9,15 +9,16 @@ the normaliser of :class:`brdf_fit.models.phong_normalized.EnergyNormalizedPhong
 Methods (each jitted, timed on a batch of ``--batch`` (cos_o, n) pairs of one exponent, the 24
 views tiled; seconds per normaliser evaluation = call time / batch):
 
-``mallett-yuksel``        :func:`brdf_fit.core.phong_normaliser.normaliser` (O(1), incomplete beta), float64
+``mallett-yuksel``        :func:`brdf_fit.core.phong_normaliser.normaliser` (O(1), incomplete
+                          beta), float64
 ``mallett-yuksel-f32``    the same in float32 (error against the float64 reference)
 ``arvo-tight``            Arvo's O(n) recurrence with the static bound ``max_n = n`` (best case;
                           integer n <= 2048 only)
 ``arvo-2048``             the same with the library default ``max_n = 2048`` (the cost a model
                           with a fixed bound pays for every exponent)
-``quad-mirror-KxP``       :func:`brdf_fit.core.quadrature.mirror_lobe_rule` with ``K`` Gauss-Legendre
-                          nodes per panel and ``P`` per azimuthal ring (16 x 32 is the library
-                          default), the rule built inside the jitted function
+``quad-mirror-KxP``       :func:`brdf_fit.core.quadrature.mirror_lobe_rule` with ``K``
+                          Gauss-Legendre nodes per panel and ``P`` per azimuthal ring (16 x 32
+                          is the library default), the rule built inside the jitted function
 ``quad-gl-KxP``           plain Gauss-Legendre in cos(theta_i) x trapezoid in phi (``K x P``),
                           the rule for smooth integrands, not adapted to the lobe
 

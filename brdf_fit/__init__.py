@@ -20,15 +20,16 @@ _MICROFACET = ("GGX", "Beckmann", "BlinnPhongNDF", "SmithHeightCorrelated", "Smi
 _PARAMS = ("Entry", "Param")
 _DATA = ("DataError", "GonioData")
 _IO = ("read", "write")
-_SINGLE = ("fit", "FitError", "FitResult")
+_SINGLE = ("fit", "FitResult")
+_PROBLEM = ("FitError", "FitProblem", "ParamLayout")
 _BATCH = ("fit_batch", "BatchFitResult")
 _CHECKS = ("run_checks", "CheckResult")
 _ROUGHNESS = ("alpha_to_roughness", "roughness_to_alpha")
 _MODULES = ("registry", "fresnel", "microfacet", "spectra")
 
 __all__ = sorted(
-    (*_MODELS, *_FRESNEL, *_MICROFACET, *_PARAMS, *_DATA, *_IO, *_SINGLE, *_BATCH, *_CHECKS,
-     *_ROUGHNESS, *_MODULES, "ParameterError", "conductor_fresnel", "directional_albedo",
+    (*_MODELS, *_FRESNEL, *_MICROFACET, *_PARAMS, *_DATA, *_IO, *_SINGLE, *_PROBLEM, *_BATCH,
+     *_CHECKS, *_ROUGHNESS, *_MODULES, "ParameterError", "conductor_fresnel", "directional_albedo",
      "__version__")
 )
 
@@ -54,6 +55,8 @@ def __getattr__(name: str):
         import brdf_fit.io as module
     elif name in _SINGLE:
         from brdf_fit.fitting import single as module
+    elif name in _PROBLEM:
+        from brdf_fit.fitting import problem as module
     elif name in _BATCH:
         from brdf_fit.fitting import batch as module
     elif name in _CHECKS:

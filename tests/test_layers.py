@@ -189,7 +189,8 @@ def _with_line(sources, mod, line):
     # a cycle inside one layer (spectra imports fresnel; now fresnel imports spectra back)
     ("brdf_fit.core.fresnel", "from brdf_fit.core import spectra", "import cycle"),
     # a module list loaded by name
-    ("brdf_fit.registry", "import importlib\nward = importlib.import_module('brdf_fit.models.ward')",
+    ("brdf_fit.registry",
+     "import importlib\nward = importlib.import_module('brdf_fit.models.ward')",
      "imports by name"),
     # a private helper imported across subpackages
     ("brdf_fit.verify.albedo", "from brdf_fit.core.quadrature import _gl01", "private _gl01"),

@@ -5,7 +5,7 @@ from far away; the registry defaults are typical values, not a start for a parti
 :func:`grid_guess` evaluates the fit's own loss at a small fixed design of candidate parameter
 vectors, on a subsample of the data, and starts the solver from the best one.
 
-The design lives in the solver's unconstrained space (:class:`brdf_fit.fit.Transform`):
+The design lives in the solver's unconstrained space (:class:`brdf_fit.fitting.problem.Transform`):
 
 - a parameter with an interval ``[lo, hi]`` (scaled logistic) takes ``u`` in
   ``[-U_SPAN, U_SPAN]``: with ``U_SPAN = 4`` the physical value covers 1.8% .. 98.2% of the
@@ -22,6 +22,10 @@ the start the caller supplied (registry defaults or ``init``) as candidate 0, so
 never worse than that start on the subsample. Parameters given in ``init`` or held fixed are not
 varied.
 
+A channel parameter here is one its model declares as such (a registry ``channels`` parameter, a
+component field declared ``channels=True``); any other vector parameter is one design dimension
+too, with the same value in every entry.
+
 This is a generic coarse grid, not a moment-matching estimator (which needs a closed form per
 model); its cost is ``GUESS_CANDIDATES x GUESS_SAMPLES`` residual evaluations (no Jacobians),
 about one solver step for 300 samples.
@@ -29,10 +33,12 @@ about one solver step for 300 samples.
 
 from __future__ import annotations
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 __all__ = ["halton", "design", "layout", "pick", "channel_index", "subsample",
-           "GUESS_CANDIDATES", "GUESS_SAMPLES", "GUESSES"]
+           "candidate_losses", "GUESS_CANDIDATES", "GUESS_SAMPLES", "GUESSES"]
 
 #: Candidate parameter vectors evaluated (the caller's start included).
 GUESS_CANDIDATES = 24
@@ -66,7 +72,7 @@ def halton(n: int, d: int) -> np.ndarray:
     return out
 
 
-def _column_design(param, transform, default, t):
+def _column_design(transform, default, t):
     """Unconstrained values for design coordinates ``t`` in [0, 1] of one parameter."""
     s = 2.0 * t - 1.0  # [-1, 1]
     lo, hi = transform.lo, transform.hi
@@ -83,30 +89,19 @@ def _column_design(param, transform, default, t):
 
 
 def _split_vary(problem, vary):
-    shared = [n for n in problem.free if n in vary and not problem.entry.param(n).channels]
-    chan = [n for n in problem.free if n in vary and problem.entry.param(n).channels]
+    lay = problem.layout
+    shared = [n for n, c in zip(lay.names, lay.channels, strict=True) if n in vary and not c]
+    chan = [n for n, c in zip(lay.names, lay.channels, strict=True) if n in vary and c]
     return shared, chan
 
 
 def _fill(problem, out, names, t, defaults):
     """Write the design coordinates ``t`` (rows, len(names)) of ``names`` into ``out``."""
-    k = 0
-    for nm, shape, tr in zip(problem.free, problem.shapes, problem.transforms, strict=True):
-        size = int(np.prod(shape)) if shape else 1
+    lay = problem.layout
+    for nm, tr, sl in zip(lay.names, lay.transforms, lay.slices, strict=True):
         if nm in names:
-            col = _column_design(problem.entry.param(nm), tr, defaults[nm],
-                                 t[:, names.index(nm)])
-            out[..., k:k + size] = np.asarray(col, float)[:, None]
-        k += size
-
-
-def _fill_mask(problem, mask, names):
-    k = 0
-    for nm, shape in zip(problem.free, problem.shapes, strict=True):
-        size = int(np.prod(shape)) if shape else 1
-        if nm in names:
-            mask[k:k + size] = True
-        k += size
+            col = _column_design(tr, defaults[nm], t[:, names.index(nm)])
+            out[..., sl] = np.asarray(col, float)[:, None]
 
 
 def layout(problem, vary, n: int = GUESS_CANDIDATES):
@@ -122,8 +117,8 @@ def layout(problem, vary, n: int = GUESS_CANDIDATES):
 def design(problem, u_start: np.ndarray, vary: tuple[str, ...], defaults: dict,
            n: int = GUESS_CANDIDATES) -> np.ndarray:
     """Candidate unconstrained vectors ``(..., n', p)`` for ``problem`` (a
-    :class:`brdf_fit.fit._Problem`); the parameters in ``vary`` take design values, the others
-    keep their ``u_start`` (``(..., p)``) values. Candidate 0 is ``u_start``.
+    :class:`brdf_fit.fitting.problem.FitProblem`); the parameters in ``vary`` take design
+    values, the others keep their ``u_start`` (``(..., p)``) values. Candidate 0 is ``u_start``.
 
     With both shared (scalar) and channel parameters to vary (:func:`layout`), the design is a
     product ``n_shared x n_level`` (``n' = n_shared n_level``, row-major): shared values from
@@ -135,7 +130,7 @@ def design(problem, u_start: np.ndarray, vary: tuple[str, ...], defaults: dict,
     lay = layout(problem, vary, n)
     if lay is None:
         out = np.repeat(u_start[..., None, :], n, axis=-2)
-        names = [nm for nm in problem.free if nm in vary]
+        names = [nm for nm in problem.layout.names if nm in vary]
         if names and n >= 2:
             _fill(problem, out[..., 1:, :], names, halton(n - 1, len(names)), defaults)
         return out
@@ -145,23 +140,15 @@ def design(problem, u_start: np.ndarray, vary: tuple[str, ...], defaults: dict,
     _fill(problem, S[..., 1:, :], shared, halton(ns - 1, len(shared)), defaults)
     T = np.repeat(u_start[..., None, :], nl, axis=-2)  # (..., nl, p): channel levels
     _fill(problem, T[..., 1:, :], chan, halton(nl - 1, len(chan)), defaults)
-    is_chan = np.zeros(u_start.shape[-1], bool)
-    _fill_mask(problem, is_chan, chan)
+    is_chan = problem.layout.mask(chan)
     out = np.where(is_chan, T[..., None, :, :], S[..., :, None, :])  # (..., ns, nl, p)
     return out.reshape(*u_start.shape[:-1], ns * nl, u_start.shape[-1])
 
 
 def channel_index(problem, n_channels: int) -> np.ndarray:
     """For each entry of the flat unconstrained vector: the channel it belongs to, or -1 for a
-    shared (scalar) parameter."""
-    idx = []
-    for nm, shape in zip(problem.free, problem.shapes, strict=True):
-        size = int(np.prod(shape)) if shape else 1
-        if problem.entry.param(nm).channels and size == n_channels:
-            idx += list(range(size))
-        else:
-            idx += [-1] * size
-    return np.asarray(idx, int)
+    shared (scalar) parameter (:meth:`~brdf_fit.fitting.problem.ParamLayout.channel_index`)."""
+    return problem.layout.channel_index(n_channels)
 
 
 def pick(xp, cands, losses, lay, chan_of):
@@ -189,3 +176,61 @@ def subsample(m: int, k: int = GUESS_SAMPLES) -> np.ndarray:
     if m <= k:
         return np.arange(m)
     return np.unique(np.linspace(0, m - 1, k).round().astype(int))
+
+
+def candidate_losses(problem, cands, prep, fixed, lay, chan_of):
+    """Per-channel losses ``(n', C)`` (``0.5 sum r^2`` over the samples) of the candidate
+    vectors ``cands`` (n', p) of :func:`design` on prepared data ``prep``
+    (:meth:`brdf_fit.fitting.problem.FitProblem.prepare`); JAX, traced by fit_batch.
+
+    For a product design (``lay = (n_shared, n_level)``) one model evaluation per shared point
+    serves all its channel levels: level ``l`` of channel ``c`` becomes the pseudo-channel
+    ``l C + c`` (every channel parameter and the per-channel data tiled ``n_level`` times). It
+    rests on the channel separability of :func:`brdf_fit.fitting._lm.directions` (tested for
+    every registry model against candidate-by-candidate evaluation); the shared part of the
+    model (a microfacet model's D and G) is then computed ``n_shared`` times instead of
+    ``n_shared n_level`` (measured: 1.02 s -> 0.66 s for 10,000 GGX problems, 24 candidates x
+    64 samples)."""
+    prob = problem.with_fixed(fixed)
+
+    def each():
+        return 0.5 * jax.vmap(lambda uu: jnp.sum(
+            prob.residuals_prepared(prob.unflatten(uu), prep) ** 2, axis=0))(cands)
+
+    if lay is None:
+        return each()
+    try:
+        return _pseudo_channel_losses(problem, cands, prep, fixed, lay, chan_of)
+    except (TypeError, ValueError):
+        # a model with per-channel constants of its own (HTSG's wavelengths) cannot take
+        # n_level C channels: its shapes do not broadcast, which fails here, at trace time
+        return each()
+
+
+def _pseudo_channel_losses(problem, cands, prep, fixed, lay, chan_of):
+    C = prep[3].shape[-1]
+    ns, nl = lay
+    c3 = cands.reshape(ns, nl, -1)
+    chan = np.asarray(chan_of) >= 0
+    wi, wo, mul, gf, scale = prep
+
+    def tile(x):
+        return x if x is None or x.shape[-1] != C else jnp.tile(x, (1, nl))
+
+    prep_t = (wi, wo, tile(mul), tile(gf), tile(scale))
+    source = problem.source
+    fixed_t = {k: (jnp.tile(v, nl) if source.param(k).channels and v.shape == (C,) else v)
+               for k, v in fixed.items()}
+    prob_t = problem.with_fixed(fixed_t)
+
+    is_chan = {n: bool(np.ravel(v)[0]) for n, v in problem.split(chan).items()}
+
+    def one(rows):  # (nl, p): one shared point, its nl levels
+        levels = jax.vmap(prob_t.split)(rows)  # {name: (nl, ...)}
+        # a channel parameter's (nl, C) levels become the pseudo-channels l C + c; a shared
+        # one is the same in every level
+        parts = {n: v.reshape(-1) if is_chan[n] else v[0] for n, v in levels.items()}
+        r = prob_t.residuals_prepared(prob_t.physical(parts), prep_t)
+        return 0.5 * jnp.sum(r * r, axis=0).reshape(nl, C)
+
+    return jax.vmap(one)(c3).reshape(ns * nl, C)

@@ -1,22 +1,17 @@
-"""Fit registered models to gonioreflectometer data (:class:`~brdf_fit.data.GonioData`).
+"""Fit a model to gonioreflectometer data (:class:`~brdf_fit.data.GonioData`): a registry name
+(flat, named parameters) or any built model (an :class:`~brdf_fit.models.AbstractBRDF` pytree,
+composed or not; its floating-point leaves, named by attribute path). The problem itself (which
+parameters are free, their flat layout and transforms, the residual metrics) is
+:class:`brdf_fit.fitting.problem.FitProblem`; see :mod:`brdf_fit.fitting.problem`.
 
-Parameters are optimised in unconstrained space through the registry's intervals (``[lo, hi]``:
-scaled logistic; ``[lo, inf)``: ``lo + softplus``), any subset held fixed, with a least-squares
-solver from optimistix (Levenberg-Marquardt by default; Gauss-Newton with a backtracking line
-search, plain Gauss-Newton and Dogleg selectable).
-
-Residual metrics (per sample and channel; ``f`` measured, ``m`` model, ``c = cos(theta_i)``):
-
-``log``       ``ln(1 + m c) - ln(1 + f c)``  (J. Low, J. Kronander, A. Ynnerman, J. Unger, "BRDF
-              models for accurate and efficient rendering of glossy surfaces", ACM TOG 31(1),
-              2012, section 5: compresses the specular peak so the lobe shape counts)
-``cuberoot``  ``cbrt(m) - cbrt(f)``  (a cube-root compression of the dynamic range)
-``relative``  ``(m - f)/max(f, floor)``
-``absolute``  ``m - f``
-
-With per-sample ``sigma`` the residual is divided by the metric's first-order standard deviation
-``g'(f) sigma``; otherwise it is multiplied by ``sqrt(weight)``. ``cos_weight`` multiplies by
-``cos(theta_i)``; ``max_zenith_deg`` drops samples beyond that zenith (either direction).
+Parameters are optimised in unconstrained space through their intervals (``[lo, hi]``: scaled
+logistic; ``[lo, inf)``: ``lo + softplus``), any subset held fixed, with a least-squares solver
+from optimistix (Levenberg-Marquardt by default; Gauss-Newton with a backtracking line search,
+plain Gauss-Newton and Dogleg selectable). Residual metrics: ``log`` (default), ``cuberoot``,
+``relative``, ``absolute`` (:func:`brdf_fit.fitting.problem.metric_parts`); with per-sample
+``sigma`` the residual is standardised, otherwise weighted by ``sqrt(weight)``;
+``cos_weight`` multiplies by ``cos(theta_i)``; ``max_zenith_deg`` drops samples beyond that
+zenith (either direction).
 
 Standard errors come from the Jacobian ``J`` of the residuals with respect to the physical
 parameters at the optimum (:func:`covariance`). With per-sample ``sigma`` the residuals are
@@ -45,14 +40,24 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
-from brdf_fit import registry
 from brdf_fit.data import GonioData
 from brdf_fit.fitting import guess as _guess
+from brdf_fit.fitting.problem import (
+    DATA_SCALE_FLOOR,
+    METRICS,
+    RELATIVE_FLOOR,
+    FitError,
+    FitProblem,
+    ParamLayout,
+    Transform,
+    at_bound,
+    model_source,
+    resolve_free,
+)
 from brdf_fit.verify.checks import run_checks
 
-__all__ = ["FitResult", "fit", "solve", "covariance", "METRICS", "SOLVERS", "Transform", "FitError"]
-
-METRICS = ("log", "cuberoot", "relative", "absolute")
+__all__ = ["FitResult", "fit", "solve", "covariance", "covariance_normal", "METRICS", "SOLVERS",
+           "RELATIVE_FLOOR", "Transform", "FitError", "FitProblem", "at_bound"]
 
 
 def _quiet(*args, **kwargs):
@@ -81,198 +86,13 @@ SOLVERS = {
     "gauss-newton-plain": optx.GaussNewton,
     "dogleg": optx.Dogleg,
 }
-#: Floor of the denominator of the relative metric, as a fraction of the data's largest value:
-#: keeps near-zero measurements (dark tails) from dominating.
-RELATIVE_FLOOR = 1e-3
-#: Logistic/softplus inverses clip the normalised value to [EDGE, 1 - EDGE]: a start exactly on a
-#: bound would map to +-inf.
-EDGE = 1e-9
 
 
-class FitError(ValueError):
-    """A fit request that cannot be honoured (unknown parameter, bad option)."""
-
-
-# ----------------------------------------------------------------------------- transforms
-
-
-@dataclasses.dataclass(frozen=True)
-class Transform:
-    """Map between a registry parameter's interval and the real line."""
-
-    lo: float | None
-    hi: float | None
-
-    def forward(self, u):
-        if self.lo is not None and self.hi is not None:
-            return self.lo + (self.hi - self.lo) * jax.nn.sigmoid(u)
-        if self.lo is not None:
-            return self.lo + jax.nn.softplus(u)
-        if self.hi is not None:
-            return self.hi - jax.nn.softplus(-u)
-        return u
-
-    def inverse(self, x):
-        x = np.asarray(x, float)
-        if self.lo is not None and self.hi is not None:
-            t = np.clip((x - self.lo) / (self.hi - self.lo), EDGE, 1 - EDGE)
-            return np.log(t) - np.log1p(-t)
-        if self.lo is not None:
-            y = np.maximum(x - self.lo, EDGE)
-            return y + np.log(-np.expm1(-y))
-        if self.hi is not None:
-            y = np.maximum(self.hi - x, EDGE)
-            return -(y + np.log(-np.expm1(-y)))
-        return x
-
-
-def _transform(p) -> Transform:
-    return Transform(p.lo, p.hi)
-
-
-#: A fitted value this close to an interval end (relative to the interval's width, or to
-#: max(1, |bound|) for a half-bounded parameter) is reported as at its bound: there the
-#: unconstrained solver has (almost) no gradient left, so the value is a limit, not an optimum
-#: of the model, and its standard error describes nothing (e.g. an f0 channel pushed to 1).
-#: 1e-4: a logistic parameter creeps towards its end ever more slowly (its slope t (1 - t)
-#: vanishes); optimistix's LM stopped an f0 that wanted to exceed 1 at 1 - 1.4e-6 after 256
-#: steps, batch-lm at 1 - 1e-16 (measured).
-AT_BOUND_REL = 1e-4
-
-
-def at_bound(param, value) -> np.ndarray:
-    """Boolean array (shape of ``value``): which entries of a fitted ``param`` value sit at an
-    end of its interval (:data:`AT_BOUND_REL`)."""
-    x = np.asarray(value, float)
-    out = np.zeros(x.shape, bool)
-    lo, hi = param.lo, param.hi
-    scale = (hi - lo) if (lo is not None and hi is not None) else None
-    for b in (lo, hi):
-        if b is not None:
-            tol = AT_BOUND_REL * (scale if scale is not None else max(1.0, abs(b)))
-            out |= np.abs(x - b) <= tol
-    return out
-
-
-# ----------------------------------------------------------------------------- residuals
-
-
-#: The metrics as ``g(m) = h(m * mul) - g(f)`` (see :func:`_metric_parts`).
-_METRIC_H = {"log": jnp.log1p, "cuberoot": jnp.cbrt, "relative": lambda x: x,
-             "absolute": lambda x: x}
-
-
-def _metric_parts(name, f, c, sigma, w, floor, cos_weight, xp=np):
-    """The residual metrics, data side: ``(mul, gf, scale)`` such that the residual of model
-    values ``m`` is ``(h(m * mul) - gf) * scale`` with ``h`` = :data:`_METRIC_H` [name] (log:
-    ``h = log1p``, ``mul = cos``; cube root: ``h = cbrt``; relative: ``mul = 1/den``; absolute:
-    identity), ``gf = h(f * mul)``, and ``scale`` the weight (``sqrt(w)``, or
-    ``1/(g'(f) sigma)`` where ``w > 0``) times ``cos`` with ``cos_weight``; relative is
-    evaluated as ``m/den - f/den``. fit() computes it inside its residual (differentiable with
-    respect to the data); the batch solver once per call, so the data terms (for ``log``, half
-    of the transcendental calls) are not recomputed at every iteration. ``f``, ``w`` (None:
-    all 1), ``sigma`` (or None): (..., M, C); ``c``: (..., M, 1); ``floor``: (...,). ``mul``
-    is (..., M, 1) except for ``relative`` (..., M, C); ``scale`` is None without weights,
-    sigma and ``cos_weight``. ``xp``: numpy or jax.numpy."""
-    floor = xp.asarray(floor)[..., None, None]
-    ones_c = xp.ones_like(c)
-    if name == "log":
-        mul = c
-        gf = xp.log1p(f * c)
-        dg = c / (1.0 + f * c)
-    elif name == "cuberoot":
-        mul, gf = ones_c, xp.cbrt(f)
-        dg = 1.0 / (3.0 * xp.cbrt(xp.maximum(f, floor)) ** 2)
-    elif name == "relative":
-        den = xp.maximum(f, floor)
-        mul = 1.0 / den
-        gf, dg = f * mul, mul
-    elif name == "absolute":
-        mul, gf, dg = ones_c, f, xp.ones_like(f)
-    else:  # pragma: no cover - validated earlier
-        raise FitError(name)
-    if sigma is not None:
-        pos = xp.ones_like(f, dtype=bool) if w is None else w > 0
-        scale = xp.where(pos, 1.0 / xp.maximum(dg * sigma, 1e-300), 0.0)
-    elif w is not None:
-        scale = xp.sqrt(w)
-    else:  # no weights: no scale array (None), nothing to multiply at every iteration
-        scale = c * xp.ones_like(f) if cos_weight else None
-        return mul, gf, scale
-    if cos_weight:
-        scale = scale * c
-    return mul, gf, scale
-
-
-@dataclasses.dataclass(frozen=True)
-class _Problem:
-    """Static description of a fit: which parameters are free, their shapes and transforms."""
-
-    entry: Any
-    free: tuple[str, ...]
-    shapes: tuple[tuple[int, ...], ...]
-    transforms: tuple[Transform, ...]
-    fixed: dict
-    metric: str
-    cos_weight: bool
-
-    def split(self, x):
-        """Flat vector (free parameters in order, each raveled) -> {name: array of its shape}."""
-        out, k = {}, 0
-        for name, shape in zip(self.free, self.shapes, strict=True):
-            size = int(np.prod(shape)) if shape else 1
-            out[name] = x[k:k + size].reshape(shape)
-            k += size
-        return out
-
-    def unflatten(self, u):
-        """Unconstrained flat ``u`` -> all physical parameters (the fixed ones included)."""
-        return self.physical(self.split(u))
-
-    def residuals_at(self, params, arrays):
-        """Residual vector of the model built from ``params`` (all parameters, physical)."""
-        return self.residuals_prepared(params, self.prepare(arrays, jnp)).reshape(-1)
-
-    def residuals(self, u, arrays):
-        """Residuals as a function of the unconstrained flat ``u`` (what the solvers see)."""
-        return self.residuals_at(self.unflatten(u), arrays)
-
-    def prepare(self, arrays, xp=np):
-        """``arrays`` (wi, wo, f, w, sigma, floor; leading batch axes allowed; ``w`` None: all
-        1) -> the prepared tuple ``(wi, wo, mul, gf, scale)`` of :meth:`residuals_prepared`.
-        ``xp``: numpy or jax.numpy (fit_batch prepares on the device)."""
-        wi, wo, f, w, sigma, floor = (None if a is None else xp.asarray(a) for a in arrays)
-        mul, gf, scale = _metric_parts(self.metric, f, wi[..., 2:3], sigma, w, floor,
-                                       self.cos_weight, xp)
-        return wi, wo, mul, gf, scale
-
-    def residuals_prepared(self, params, prep):
-        """Residuals ``(M, C)`` (not flattened) of the model built from ``params`` (all,
-        physical) on prepared data (:meth:`prepare`)."""
-        wi, wo, mul, gf, scale = prep
-        m = self.entry.build(**params).eval(wi, wo)
-        if m.ndim == 1:
-            m = m[:, None]
-        r = _METRIC_H[self.metric](m * mul) - gf
-        return r if scale is None else r * scale
-
-    def physical(self, parts):
-        """{free name: unconstrained value} -> all physical parameters (fixed ones included)."""
-        out = {name: tr.forward(parts[name])
-               for name, tr in zip(self.free, self.transforms, strict=True)}
-        return {**self.fixed, **out}
-
-    def residuals_phys(self, x, arrays):
-        """Residuals as a function of the flat free *physical* parameters (for standard
-        errors: the Jacobian in the parameters the user reads)."""
-        return self.residuals_at({**self.fixed, **self.split(x)}, arrays)
-
-
-def solve(problem: _Problem, u0, arrays, solver="lm", rtol=1e-10, atol=1e-10, max_steps=256,
+def solve(problem: FitProblem, u0, arrays, solver="lm", rtol=1e-10, atol=1e-10, max_steps=256,
           residuals=None):
     """Pure-JAX least-squares solve from ``u0``; returns ``(u, converged, steps)`` (``u`` is
     differentiable with respect to ``arrays`` by optimistix's implicit adjoint).
-    ``residuals(u, arrays)``: the flat residual (default :meth:`_Problem.residuals`)."""
+    ``residuals(u, arrays)``: the flat residual (default :meth:`FitProblem.residuals`)."""
     cls = SOLVERS[solver]
     res = problem.residuals if residuals is None else residuals
     sol = optx.least_squares(
@@ -366,7 +186,7 @@ def _arrays(data: GonioData, max_zenith_deg, dtype):
         raise FitError(f"no samples left after the max_zenith_deg cut ({max_zenith_deg} deg)")
     w = data.weight[keep]
     f = data.value[keep]
-    floor = RELATIVE_FLOOR * max(float(np.max(np.abs(f))), 1e-300)
+    floor = RELATIVE_FLOOR * max(float(np.max(np.abs(f))), DATA_SCALE_FLOOR)
     sigma = None if data.sigma is None else jnp.asarray(data.sigma[keep], dtype)
     return (jnp.asarray(data.wi[keep], dtype), jnp.asarray(data.wo[keep], dtype),
             jnp.asarray(f, dtype), jnp.asarray(w, dtype), sigma, floor), int(keep.sum())
@@ -374,7 +194,7 @@ def _arrays(data: GonioData, max_zenith_deg, dtype):
 
 def fit(
     data: GonioData,
-    model: str,
+    model,
     fix: dict | None = None,
     init: dict | None = None,
     metric: str = "log",
@@ -388,21 +208,34 @@ def fit(
     atol: float = 1e-10,
     checks: Sequence[str] = (),
     guess: str = "grid",
+    free: Sequence[str] | None = None,
+    bounds: dict | None = None,
 ) -> FitResult:
-    """Fit registry model ``model`` to ``data``.
+    """Fit ``model`` to ``data``: a registry name (or :class:`~brdf_fit.core.params.Entry`),
+    or any built model (an :class:`~brdf_fit.models.AbstractBRDF` pytree, composed or not),
+    whose floating-point leaves are its parameters, named by attribute path
+    (``"distribution.alpha_x"``, ``"fresnel.f0"``, ``"lobes.1.distribution.alpha_x"``; see
+    :mod:`brdf_fit.fitting.problem`). ``FitResult.model`` is the fitted model (for a built one:
+    the template with the fitted values put back); ``params`` and ``stderr`` are keyed by name
+    or path.
 
     ``fix``: parameters held at given values. ``init``: start values (default: the registry
-    defaults, broadcast to the data's channel count for channel parameters). ``multistart``:
-    additional random starts (normal perturbations of the start in unconstrained space, seeded);
-    the lowest final loss wins. ``checks``: names of :mod:`brdf_fit.checks` to run on the fitted
-    model (reported in the result). ``guess``: ``"grid"`` (default) starts the parameters that
-    have no ``init`` value from the best of a coarse design evaluated on a subsample of the data
-    (:mod:`brdf_fit.guess`; the registry defaults are one of its candidates); ``"none"`` starts
-    them at the registry defaults.
+    defaults, broadcast to the data's channel count for channel parameters; for a built model
+    its own values). ``free``: the parameters to fit (default: all that are not in ``fix``;
+    the others stay at their ``init``/default values); for a built model a path may name a
+    component, selecting every parameter under it. ``bounds``: built models only,
+    ``{path: (lo, hi)}`` (None: open on that side) overriding or supplying a leaf's interval; a
+    leaf whose component declares no interval and that has no ``bounds`` entry is fitted
+    unbounded. ``multistart``: additional random starts (normal perturbations of the start in
+    unconstrained space, seeded); the lowest final loss wins. ``checks``: names of
+    :mod:`brdf_fit.verify.checks` to run on the fitted model (reported in the result).
+    ``guess``: ``"grid"`` (default) starts the parameters that have no ``init`` value from the
+    best of a coarse design evaluated on a subsample of the data (:mod:`brdf_fit.fitting.guess`;
+    the defaults are one of its candidates); ``"none"`` starts them at the defaults.
     """
 
     t0 = time.perf_counter()
-    entry = registry.get(model)
+    source = model_source(model, bounds)
     if metric not in METRICS:
         raise FitError(f"unknown metric {metric!r}; valid metrics: {', '.join(METRICS)}")
     if solver not in SOLVERS:
@@ -412,35 +245,26 @@ def fit(
         raise FitError(f"unknown guess {guess!r}; valid: {', '.join(_guess.GUESSES)}")
     fix = dict(fix or {})
     init = dict(init or {})
-    for k in (*fix, *init):
-        entry.param(k)  # unknown names raise with the valid list
+    free = resolve_free(source, fix, init, free)  # unknown names raise with the valid list
     data.validate()
     dtype = jnp.zeros(()).dtype
     arrays, n_used = _arrays(data, max_zenith_deg, dtype)
     C = data.n_channels
-    defaults = entry.defaults()
+    defaults = source.defaults()
     start, fixed = {}, {}
-    for p in entry.params:
-        v = np.asarray(fix.get(p.name, init.get(p.name, defaults[p.name])), float)
-        if p.channels and v.ndim == 0 and C > 1:
-            v = np.full(C, float(v))
-        elif p.channels and v.ndim == 1 and v.shape[0] != C and C >= 1:
-            v = np.full(C, float(np.mean(v)))
-        p.validate(v, entry.name)
-        (fixed if p.name in fix else start)[p.name] = v
-    free = tuple(n for n in entry.param_names if n in start)
-    problem = _Problem(
-        entry=entry,
-        free=free,
-        shapes=tuple(start[n].shape for n in free),
-        transforms=tuple(_transform(entry.param(n)) for n in free),
+    for p in source.params:
+        v = p.start_value(fix.get(p.name, init.get(p.name, defaults[p.name])), C)
+        p.check(v, source.name)
+        (start if p.name in free else fixed)[p.name] = v
+    problem = FitProblem(
+        source=source,
+        layout=ParamLayout.of(source, free, [start[n].shape for n in free]),
         fixed={k: jnp.asarray(v, dtype) for k, v in fixed.items()},
         metric=metric,
         cos_weight=cos_weight,
     )
-    u0 = np.concatenate([np.atleast_1d(tr.inverse(start[n])).ravel()
-                         for n, tr in zip(free, problem.transforms, strict=True)]) if free else (
-        np.zeros(0))
+    layout = problem.layout
+    u0 = layout.inverse(start)
     run = jax.jit(lambda u, a: solve(problem, u, a, solver, rtol, atol, max_steps))
     loss_fn = jax.jit(lambda u, a: 0.5 * jnp.sum(problem.residuals(u, a) ** 2))
     vary = tuple(n for n in free if n not in init) if guess == "grid" else ()
@@ -464,7 +288,7 @@ def fit(
     (u, ok, steps), loss = best
     phys = problem.unflatten(u)
     # standard errors: Jacobian w.r.t. the free physical parameters, flattened
-    flat_phys = jnp.concatenate([jnp.ravel(phys[n]) for n in free]) if free else jnp.zeros(0)
+    flat_phys = layout.join(phys)
 
     # jitted: eagerly, each of the ~90 operations compiles on its own (3-5 s per fit, measured)
     r = np.asarray(jax.jit(problem.residuals_phys)(flat_phys, arrays))
@@ -478,18 +302,14 @@ def fit(
             se = np.sqrt(np.maximum(np.diag(cov), 0.0))
         except np.linalg.LinAlgError:
             se = np.full(p, np.nan)
-        k = 0
-        for name, shape in zip(free, problem.shapes, strict=True):
-            size = int(np.prod(shape)) if shape else 1
-            stderr[name] = se[k:k + size].reshape(shape)
-            k += size
+        stderr = layout.split(se)
     converged = bool(ok)
     params = {k: np.asarray(v) for k, v in phys.items()}
-    fitted = entry.build(**{k: jnp.asarray(v) for k, v in params.items()})
+    fitted = source.build({k: jnp.asarray(v) for k, v in params.items()})
     result = FitResult(
-        model_name=entry.name,
+        model_name=source.name,
         model=fitted,
-        params={k: params[k] for k in entry.param_names},
+        params={k: params[k] for k in source.names},
         stderr=stderr,
         converged=converged,
         steps=int(steps),
@@ -502,11 +322,11 @@ def fit(
         fixed={k: np.asarray(v) for k, v in fixed.items()},
         starts=max(1, multistart),
         message="" if converged else f"did not converge in {max_steps} steps",
-        at_bound=tuple(n for n in free if at_bound(entry.param(n), params[n]).any()),
+        at_bound=tuple(n for n, tr in zip(free, layout.transforms, strict=True)
+                       if at_bound(tr, params[n]).any()),
     )
     if checks:
-
-        result.checks = run_checks(fitted, checks=list(checks), name=entry.name,
-                                   expected_failures=entry.expected_failures)
+        result.checks = run_checks(fitted, checks=list(checks), name=source.name,
+                                   expected_failures=source.expected_failures)
     result.seconds = time.perf_counter() - t0
     return result

@@ -111,12 +111,12 @@ def test_fit_reports_checks():
 def test_solution_is_differentiable_with_respect_to_data():
     """The pure solve differentiates through the optimum (implicit adjoint): d alpha / d scale of
     the data, checked against finite differences."""
-    from brdf_fit.fitting.single import _arrays, _Problem, _transform, solve
+    from brdf_fit.fitting.problem import FitProblem
+    from brdf_fit.fitting.single import _arrays, solve
 
     d = synth("ggx", {"alpha": 0.23, "f0": [0.9, 0.6, 0.3]}, n=120)
-    entry = registry.get("ggx")
-    prob = _Problem(entry, ("alpha",), ((),), (_transform(entry.param("alpha")),),
-                    {"f0": jnp.asarray([0.9, 0.6, 0.3])}, "absolute", False)
+    prob = FitProblem.of("ggx", ("alpha",), ((),), {"f0": jnp.asarray([0.9, 0.6, 0.3])},
+                         metric="absolute")
     arrays, _ = _arrays(d, None, jnp.float64)
     u0 = jnp.asarray([0.0])
 

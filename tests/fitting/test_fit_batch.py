@@ -231,14 +231,13 @@ def test_at_bound_flags_and_progress():
 
 
 def _problem_at(entry, rng, metric="log", cos_weight=False):
-    from brdf_fit.fitting.single import _Problem, _transform
+    from brdf_fit.fitting.problem import FitProblem
     d = {n: (np.broadcast_to(v, (3,)) if entry.param(n).channels and v.size in (1, 3) else v)
          for n, v in entry.defaults().items()}  # channel parameters (C,), as fit_batch has them
     free = entry.param_names
     shapes = tuple(np.shape(d[n]) for n in free)
-    trs = tuple(_transform(entry.param(n)) for n in free)
-    prob = _Problem(entry, free, shapes, trs, {}, metric, cos_weight)
-    u = np.concatenate([np.ravel(t.inverse(d[n])) for n, t in zip(free, trs, strict=True)])
+    prob = FitProblem.of(entry, free, shapes, metric=metric, cos_weight=cos_weight)
+    u = prob.layout.inverse(d)
     return prob, u + 0.3 * rng.standard_normal(u.shape)
 
 
@@ -247,9 +246,9 @@ def _check_structured(entry, prob, u, n=24, seed=0):
     residual; returns the largest relative Jacobian error."""
     import jax
 
-    from brdf_fit.fitting.batch import _tangents
-    from brdf_fit.fitting.batch import directions as tangent_directions
-    from brdf_fit.fitting.single import RELATIVE_FLOOR
+    from brdf_fit.fitting._lm import directions as tangent_directions
+    from brdf_fit.fitting._lm import tangents
+    from brdf_fit.fitting.problem import RELATIVE_FLOOR
     rng = np.random.default_rng(seed)
     wi, wo = directions(rng, n), directions(rng, n)
     f = np.abs(np.asarray(entry.build(**prob.unflatten(jnp.asarray(u))).eval(
@@ -257,7 +256,7 @@ def _check_structured(entry, prob, u, n=24, seed=0):
     f = np.broadcast_to(f.reshape(n, -1), (n, 3)) * np.exp(0.1 * rng.standard_normal((n, 3)))
     raw = (wi, wo, f, np.ones_like(f), None, RELATIVE_FLOOR * f.max())
     dirs, Q = tangent_directions(prob, 3)
-    r, T = _tangents(prob, dirs, jnp.asarray(u), prob.prepare(raw), {})
+    r, T = tangents(prob, dirs, jnp.asarray(u), prob.prepare(raw), {})
     J_ref = np.asarray(jax.jacfwd(lambda x: prob.residuals(x, raw))(jnp.asarray(u)))
     np.testing.assert_allclose(np.asarray(r).reshape(-1), prob.residuals(jnp.asarray(u), raw),
                                rtol=1e-12, atol=1e-13)
@@ -309,7 +308,7 @@ def test_structured_jacobian_detects_channel_mixing():
 
 def _metric_reference(name, m, f, c, sigma, w, floor, cos_weight):
     """The residual metrics written out from their definitions (fit.py's module docstring),
-    independently of brdf_fit.fitting.single._metric_parts."""
+    independently of brdf_fit.fitting.problem.metric_parts."""
     if name == "log":
         g, dg = np.log1p(m * c) - np.log1p(f * c), c / (1.0 + f * c)
     elif name == "cuberoot":
@@ -327,11 +326,11 @@ def _metric_reference(name, m, f, c, sigma, w, floor, cos_weight):
 @pytest.mark.parametrize("sigma", ["none", "weights", "sigma"])
 @pytest.mark.parametrize("cos_weight", [False, True], ids=["", "cos"])
 def test_prepared_residuals_equal_fit_residuals(metric, sigma, cos_weight):
-    """The residual with the data side of the metric computed once (_Problem.prepare, NumPy
+    """The residual with the data side of the metric computed once (FitProblem.prepare, NumPy
     for the test, jax.numpy in fit() and fit_batch) equals the metric written out from its
     definition, for every metric, without weights, with weights (some zero) or sigma, and
     with cosine weighting; fit()'s flat residual is the same."""
-    from brdf_fit.fitting.single import RELATIVE_FLOOR
+    from brdf_fit.fitting.problem import RELATIVE_FLOOR
     rng = np.random.default_rng(5)
     entry = registry.get("ggx")
     prob, u = _problem_at(entry, rng, metric=metric, cos_weight=cos_weight)
@@ -370,8 +369,7 @@ def test_guess_pseudo_channels_equal_candidate_by_candidate(name):
     """The grid guess evaluates all channel levels of a shared point at once, as extra
     (pseudo-)channels; the per-channel losses equal evaluating every candidate on its own."""
     from brdf_fit.fitting import guess as G
-    from brdf_fit.fitting.batch import _candidate_losses
-    from brdf_fit.fitting.single import RELATIVE_FLOOR
+    from brdf_fit.fitting.problem import RELATIVE_FLOOR
     entry = registry.get(name)
     rng = np.random.default_rng(7)
     prob, u = _problem_at(entry, rng)
@@ -386,6 +384,6 @@ def test_guess_pseudo_channels_equal_candidate_by_candidate(name):
     f = np.broadcast_to(f.reshape(n, -1), (n, 3)) * np.exp(0.1 * rng.standard_normal((n, 3)))
     prep = tuple(jnp.asarray(a) for a in prob.prepare(
         (wi, wo, f, np.ones_like(f), None, RELATIVE_FLOOR * f.max())))
-    got = np.asarray(_candidate_losses(prob, jnp.asarray(cands), prep, {}, lay, chan_of))
-    want = np.asarray(_candidate_losses(prob, jnp.asarray(cands), prep, {}, None, chan_of))
+    got = np.asarray(G.candidate_losses(prob, jnp.asarray(cands), prep, {}, lay, chan_of))
+    want = np.asarray(G.candidate_losses(prob, jnp.asarray(cands), prep, {}, None, chan_of))
     np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-300)

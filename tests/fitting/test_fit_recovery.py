@@ -20,10 +20,10 @@ standard errors.
 2. Coverage (slow): 200 seeded trials of 1% lognormal noise (``v exp(0.01 z)``, sigma = 0.01 v
    as :class:`data_synth.noise.Lognormal` estimates it) for ggx, beckmann and modified-phong; each
    recovered parameter must lie within 3 standard errors of the truth in >= 95% of the trials.
-   The 200 fits run batched (``jax.vmap`` of the same :func:`brdf_fit.fitting.single.solve` that
-   :func:`brdf_fit.fitting.single.fit` runs, with fit()'s standard-error formula); the batch reproduces
-   fit()'s parameters and standard errors on the first trials (asserted), so the study measures
-   fit() without 600 separate compilations (about 6 s each on this CPU).
+   The 200 fits run batched (``jax.vmap`` of the same :func:`brdf_fit.fitting.single.solve`
+   that :func:`brdf_fit.fitting.single.fit` runs, with fit()'s standard-error formula); the batch
+   reproduces fit()'s parameters and standard errors on the first trials (asserted), so the
+   study measures fit() without 600 separate compilations (about 6 s each on this CPU).
 """
 
 import math
@@ -35,7 +35,8 @@ import pytest
 
 from brdf_fit import registry
 from brdf_fit.data import GonioData
-from brdf_fit.fitting.single import _Problem, _transform, covariance, fit, solve
+from brdf_fit.fitting.problem import FitProblem
+from brdf_fit.fitting.single import covariance, fit, solve
 from data_synth.plans import in_plane, random_sparse
 
 RTOL = 1e-6
@@ -192,8 +193,8 @@ def batched_fits(name, truth, use_sigma=True, n_trials=N_TRIALS, seed0=0):
     F, S = np.stack(F), np.stack(S)
     free = entry.param_names
     shapes = tuple((1,) if entry.param(n).channels else () for n in free)
-    trs = tuple(_transform(entry.param(n)) for n in free)
-    prob = _Problem(entry, free, shapes, trs, {}, "log", False)
+    prob = FitProblem.of(entry, free, shapes)
+    trs = prob.transforms
     u0 = jnp.asarray(np.concatenate([np.atleast_1d(tr.inverse(truth[n])).ravel()
                                      for n, tr in zip(free, trs, strict=True)]))
     Wi, Wo = jnp.asarray(wi), jnp.asarray(wo)
