@@ -522,11 +522,17 @@ def model_source(model, bounds: Mapping[str, Any] | None = None) -> ModelSource:
     intervals)."""
     if isinstance(model, ModelSource):
         src = model
-    elif isinstance(model, str):
-        src = RegistrySource(registry.get(model))
-    elif isinstance(model, Entry):
-        src = RegistrySource(model)
+    elif isinstance(model, str | Entry):
+        entry = registry.get(model) if isinstance(model, str) else model
+        if "delta" in entry.tags:
+            raise FitError(f"{entry.name} is a delta lobe: its BRDF is 0 at every pair of "
+                           "directions a gonioreflectometer samples (only the exact mirror "
+                           "direction reflects), so there is nothing to fit")
+        src = RegistrySource(entry)
     elif isinstance(model, eqx.Module):  # an AbstractBRDF, or any module with eval()
+        if getattr(model, "is_delta", False):
+            raise FitError(f"{type(model).__name__} is a delta lobe: its BRDF is 0 at every "
+                           "sampled pair of directions, so there is nothing to fit")
         return TemplateSource(model, bounds)
     else:
         raise FitError(f"a fit takes a registry name or a built model (an AbstractBRDF), got "

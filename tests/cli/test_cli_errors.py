@@ -126,3 +126,13 @@ def test_bad_paths_and_values_with_files(capsys, files, monkeypatch):
     monkeypatch.setattr(brdf_fit.demo, "run_demo", no_work)
     for argv, fragments in cases:
         one_error(capsys, argv, *fragments)
+
+
+def test_a_delta_lobe_is_not_fitted(capsys, files):
+    """``fit --model mirror`` used to 'converge' with rms 100 (issue 16, defect 9)."""
+    one_error(capsys, ["fit", str(files["data"]), "--model", "mirror"], "delta lobe")
+    from brdf_fit import Mirror, SchlickFresnel, fit, read
+    from brdf_fit.fitting.problem import FitError
+
+    with pytest.raises(FitError, match="delta lobe"):
+        fit(read(files["data"]), Mirror(fresnel=SchlickFresnel(1.0)))
