@@ -1,14 +1,23 @@
-"""Helpers shared by the catalogue model test files.
+"""Helpers shared by the test files: jitted model wrappers, directions, finite differences and
+the "finite at the extremes" harness.
 
 The jitted wrappers are module-level objects, so every test module that uses them reuses one
 compilation per model type and argument shapes (a fresh ``jax.jit(lambda ...)`` per test or per
 file compiles again); eager calls (``model.eval(...)`` outside ``jit``) dispatch op by op and
 were the largest cost of several tests.
+
+Random data: every helper that draws takes a seeded ``numpy.random.Generator`` and draws in a
+documented order, so a test's data is fixed by its seed (see also :func:`seed_of`).
 """
 
 from __future__ import annotations
 
+import math
+import zlib
+from collections.abc import Mapping
+
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -41,10 +50,34 @@ def draw_jit(model, wo, uc, u):
     return s.wi, s.pdf, s.weight
 
 
+def seed_of(*key) -> int:
+    """A seed fixed by ``key`` (e.g. the test's name and parameters): CRC-32 of ``repr(key)``.
+
+    The same in every process and on every platform, unlike Python's ``hash`` of a ``str``
+    (salted per process unless ``PYTHONHASHSEED`` is set)."""
+    return zlib.crc32(repr(key).encode())
+
+
 def vec(theta, phi):
     """Unit vectors from polar angle ``theta`` and azimuth ``phi`` (NumPy, broadcasting)."""
     theta, phi = np.asarray(theta), np.asarray(phi)
     return np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], -1)
+
+
+def dir_from_cos(cos_theta, phi=0.0):
+    """The unit vector ``(3,)`` (NumPy) with polar cosine ``cos_theta`` and azimuth ``phi``:
+    ``(s cos(phi), s sin(phi), cos_theta)`` with ``s = sqrt(max(0, 1 - cos_theta^2))``."""
+    s = math.sqrt(max(0.0, 1.0 - cos_theta * cos_theta))
+    return np.array([s * math.cos(phi), s * math.sin(phi), cos_theta])
+
+
+def random_dirs(rng, n, lo=1e-3):
+    """``(n, 3)`` unit vectors (NumPy) with cosines uniform in ``[lo, 1]`` (drawn first) and
+    azimuths uniform in ``[0, 2 pi)`` (drawn second); ``lo = -1``: uniform on the sphere."""
+    mu = rng.uniform(lo, 1.0, n)
+    phi = rng.uniform(0, 2 * np.pi, n)
+    s = np.sqrt(1 - mu * mu)
+    return np.stack([s * np.cos(phi), s * np.sin(phi), mu], -1)
 
 
 def random_angles(rng, n, lo=1e-3, phi_range=(0.0, 2 * np.pi)):
@@ -52,29 +85,146 @@ def random_angles(rng, n, lo=1e-3, phi_range=(0.0, 2 * np.pi)):
     return np.arccos(rng.uniform(lo, 1.0, n)), rng.uniform(*phi_range, n)
 
 
-def central_differences(f, params, h=1e-6, relative_step=False):
-    """``{name: array}`` of central differences of the scalar ``f(params)`` with respect to every
-    entry of every parameter (``params``: dict of NumPy-convertible arrays). The step is ``h``,
-    or ``h max(1, |x|)`` with ``relative_step``."""
-    p0 = {k: np.asarray(v, float) for k, v in params.items()}
+# ----------------------------------------------------------------------------- finite differences
+
+
+def fd_central(fn, x, h):
+    """Second-order central difference ``(fn(x + h) - fn(x - h)) / (2 h)`` (``x``, ``h`` may be
+    arrays: elementwise steps of an elementwise ``fn``)."""
+    return (fn(x + h) - fn(x - h)) / (2 * h)
+
+
+def fd_central4(fn, x, h):
+    """Fourth-order central difference
+    ``(8 (fn(x + h) - fn(x - h)) - (fn(x + 2h) - fn(x - 2h))) / (12 h)``."""
+    return (8.0 * (fn(x + h) - fn(x - h)) - (fn(x + 2 * h) - fn(x - 2 * h))) / (12.0 * h)
+
+
+def _select(value, name):
+    """``value[name]`` for a mapping of per-parameter values, else ``value``."""
+    return value[name] if isinstance(value, Mapping) else value
+
+
+def central_differences(f, params, h=1e-6, relative_step=False, names=None):
+    """Central differences of the scalar ``f(params)`` with respect to every entry of every leaf of
+    ``params`` (a dict of NumPy-convertible arrays, nested dicts, or one array), as a dict
+    ``{path: array}`` (``path``: the leaf's key path, e.g. ``('alpha',)`` or ``('ward', 'rho_s')``).
+
+    ``f`` receives ``params`` with every leaf as a float64 NumPy array, one entry moved by
+    ``+-step``; the step is ``h``, or ``h max(1, |x|)`` with ``relative_step``. ``names``: only the
+    leaves under these top-level keys (default: all)."""
+    flat, tree = jax.tree_util.tree_flatten_with_path(params)
+    leaves = [np.asarray(v, float) for _, v in flat]
     out = {}
-    for k, v in p0.items():
+    for i, (path, _) in enumerate(flat):
+        key = tuple(getattr(k, "key", getattr(k, "idx", k)) for k in path)
+        if names is not None and (not key or key[0] not in names):
+            continue
+        v = leaves[i]
         fd = np.zeros(v.shape)
         for idx in np.ndindex(v.shape):
             step = h * max(1.0, abs(float(v[idx]))) if relative_step else h
             up, dn = v.copy(), v.copy()
             up[idx] += step
             dn[idx] -= step
-            fd[idx] = (float(f({**p0, k: up})) - float(f({**p0, k: dn}))) / (2 * step)
-        out[k] = fd
+            p_up = jax.tree_util.tree_unflatten(tree, leaves[:i] + [up] + leaves[i + 1:])
+            p_dn = jax.tree_util.tree_unflatten(tree, leaves[:i] + [dn] + leaves[i + 1:])
+            fd[idx] = (float(f(p_up)) - float(f(p_dn))) / (2 * step)
+        out[key] = fd
     return out
 
 
-def assert_gradient_matches_fd(f, grad, params, rel, abs, h=1e-6, relative_step=False):
-    """Every entry of ``grad[name]`` equals the central difference of ``f`` (see
-    :func:`central_differences`) to ``pytest.approx(rel=rel, abs=abs)``."""
-    fd = central_differences(f, params, h=h, relative_step=relative_step)
-    for k, d in fd.items():
-        gk = np.asarray(grad[k], float).reshape(d.shape)
+def assert_gradient_matches_fd(f, grad, params, rel, abs, h=1e-6, relative_step=False,
+                               names=None):
+    """Every entry of the gradient ``grad`` (same structure as ``params``) equals the central
+    difference of ``f`` (:func:`central_differences`) to ``pytest.approx(rel=rel, abs=abs)``, i.e.
+    ``|g - fd| <= max(rel |fd|, abs)``. ``rel`` and ``abs`` may be dicts keyed by the top-level
+    parameter name."""
+    fd = central_differences(f, params, h=h, relative_step=relative_step, names=names)
+    for key, d in fd.items():
+        gk = grad
+        for k in key:
+            gk = gk[k]
+        gk = np.asarray(gk, float).reshape(d.shape)
+        r = _select(rel, key[0]) if key else rel
+        a = _select(abs, key[0]) if key else abs
         for idx in np.ndindex(d.shape):
-            assert float(gk[idx]) == pytest.approx(d[idx], rel=rel, abs=abs), (k, idx)
+            assert float(gk[idx]) == pytest.approx(d[idx], rel=r, abs=a), (key, idx)
+
+
+def eval_cos_and_pdf(model, wi, wo):
+    """``sum(eval_cos) + 1e-2 sum(pdf)``: an objective of
+    :func:`assert_model_gradient_matches_fd` that also differentiates the pdf."""
+    return jnp.sum(model.eval_cos(wi, wo)) + 1e-2 * jnp.sum(model.pdf(wi, wo))
+
+
+def assert_model_gradient_matches_fd(build, wi, wo, params, rel, abs, h=1e-6,
+                                     relative_step=False, weights=None, objective=None):
+    """The gradient of ``objective(build(**p), wi, wo)`` (default: ``sum(eval(wi, wo) * weights)``)
+    with respect to every entry of every parameter equals its central differences
+    (:func:`assert_gradient_matches_fd`). One jitted ``value_and_grad`` gives both (the parameters
+    go in as float64 NumPy arrays, so it compiles once)."""
+
+    @jax.jit
+    def value_and_grad(p):
+        def total(q):
+            m = build(**q)
+            if objective is not None:
+                return objective(m, wi, wo)
+            f = m.eval(wi, wo)
+            return jnp.sum(f if weights is None else f * weights)
+
+        return jax.value_and_grad(total)(p)
+
+    p0 = {k: np.asarray(v, float) for k, v in params.items()}
+    grad = value_and_grad(p0)[1]
+    assert_gradient_matches_fd(lambda p: value_and_grad(p)[0], grad, p0, rel=rel, abs=abs, h=h,
+                               relative_step=relative_step)
+
+
+# ----------------------------------------------------------------------------- finite at extremes
+
+
+def assert_finite(tree, what=""):
+    """Every entry of every leaf of ``tree`` is finite (the message names the leaf's path)."""
+    for path, leaf in jax.tree_util.tree_leaves_with_path(tree):
+        bad = ~np.isfinite(np.asarray(leaf))
+        assert not bad.any(), f"{what}: {bad.sum()} non-finite entries at {path}"
+
+
+def values_pdfs_grads(build, grid, wi, wo):
+    """``(eval, pdf, grads)`` of ``build(**p)`` at ``(wi, wo)`` for every parameter set ``p`` of
+    ``grid`` (dict of equal-length arrays; one jitted ``vmap``): ``grads`` is the gradient of
+    ``sum(eval) + sum(pdf)`` with respect to ``(p, wi, wo)``."""
+
+    def total(p, wi, wo):
+        m = build(**p)
+        return jnp.sum(m.eval(wi, wo)) + jnp.sum(m.pdf(wi, wo))
+
+    def one(p):
+        m = build(**p)
+        return m.eval(wi, wo), m.pdf(wi, wo), jax.grad(total, argnums=(0, 1, 2))(p, wi, wo)
+
+    return jax.jit(jax.vmap(one))(grid)
+
+
+#: uniforms of :func:`assert_sampling_finite`: both ends of [0, 1) and near them
+EXTREME_UNIFORMS = (0.0, 1e-7, 0.5, 1 - 1e-7)
+
+
+def assert_sampling_finite(model, dtype, cos=(1e-7, 0.5, 1.0), phi=0.4,
+                           failed_weight_zero=True):
+    """``model.sample`` at ``wo`` of each cosine in ``cos`` (azimuth ``phi``) and the 4 x 4 grid of
+    :data:`EXTREME_UNIFORMS` (with 16 lobe uniforms from 0 to ``1 - 1e-7``), in ``dtype``: wi, pdf
+    and weight finite; with ``failed_weight_zero`` also weight 0 where pdf is 0."""
+    us = jnp.asarray(EXTREME_UNIFORMS, dtype)
+    u = jnp.stack(jnp.meshgrid(us, us), -1).reshape(-1, 2)
+    uc = jnp.linspace(0.0, 1 - 1e-7, 16, dtype=dtype)
+    for c in cos:
+        w = jnp.broadcast_to(jnp.asarray(vec(np.array(math.acos(c)), np.array(phi)), dtype),
+                             (16, 3))
+        s = sample_jit(model, w, uc, u)
+        for x in (s.wi, s.pdf, s.weight):
+            assert np.all(np.isfinite(np.asarray(x))), (c, x)
+        if failed_weight_zero:
+            assert np.all(np.asarray(s.weight)[np.asarray(s.pdf) == 0] == 0), c

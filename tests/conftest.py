@@ -66,7 +66,8 @@ def pytest_collection_modifyitems(config, items):
         slow = func in CATALOGUE_SLOW
         if func == "tests/models/test_sampling.py::test_registry_sampler_matches_pdf":
             slow = str(item.callspec.params.get("cos_o")) != CATALOGUE_CHI2_VIEW
-        if name in COSTLY and func != "tests/verify/test_checks.py::test_registry_models_pass_or_declare":
+        checks_test = "tests/verify/test_checks.py::test_registry_models_pass_or_declare"
+        if name in COSTLY and func != checks_test:
             slow = slow or not (func.endswith("test_values_and_gradients_are_finite")
                                 and "f64" in item.nodeid)
         if slow:

@@ -1,7 +1,7 @@
-"""Model-mismatch conversion (brdf_fit.convert.phong_to_ggx, ``brdf-fit convert phong-to-ggx``): the fits
-converge and beat the closed form in their own metric, the large-exponent GGX widths agree with
-Walter's closed form within the measured factor, the geometry is the stated one, the JSON table
-interpolates, and user errors are one line with exit status 2."""
+"""Model-mismatch conversion (brdf_fit.convert.phong_to_ggx, ``brdf-fit convert phong-to-ggx``):
+the fits converge and beat the closed form in their own metric, the large-exponent GGX widths
+agree with Walter's closed form within the measured factor, the geometry is the stated one, the
+JSON table interpolates, and user errors are one line with exit status 2."""
 
 import json
 import math
@@ -9,6 +9,9 @@ import math
 import jax.numpy as jnp
 import numpy as np
 import pytest
+
+from brdf_fit import registry
+from brdf_fit.cli import main
 from brdf_fit.convert.phong_to_ggx import (
     PEAK_F0,
     ConversionError,
@@ -17,9 +20,6 @@ from brdf_fit.convert.phong_to_ggx import (
     phong_to_ggx,
     source_scale,
 )
-
-from brdf_fit import registry
-from brdf_fit.cli import main
 
 #: alpha_fit / alpha_closed must lie in (1/FACTOR, FACTOR) for Blinn-Phong n >= 100.
 #:

@@ -7,6 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _helpers import fd_central
 from reference_numpy import ref_fresnel_conductor
 
 from brdf_fit.core import fresnel
@@ -135,7 +136,7 @@ def test_channel_broadcast():
 
 
 def _fd(f, x, h=1e-6):
-    return (f(x + h) - f(x - h)) / (2 * h)
+    return fd_central(f, x, h)
 
 
 @pytest.mark.parametrize("c", [0.05, 0.3, 0.7, 0.99])

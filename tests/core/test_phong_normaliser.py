@@ -8,6 +8,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _helpers import fd_central4 as _fd4
 from scipy import integrate
 
 from brdf_fit.core.phong_normaliser import normaliser
@@ -123,10 +124,6 @@ def test_mallett_yuksel_large_exponent_matches_mpmath(n):
 def test_real_exponent_matches_scipy():
     for c, n in [(0.05, 2.5), (0.4, 37.25), (0.9, 0.3), (1e-3, 512.5)]:
         assert float(normaliser(c, n)) == pytest.approx(_reference_normaliser(c, n), rel=1e-11)
-
-
-def _fd4(fn, x, h):
-    return (8.0 * (fn(x + h) - fn(x - h)) - (fn(x + 2 * h) - fn(x - 2 * h))) / (12.0 * h)
 
 
 def test_dn_matches_finite_differences():

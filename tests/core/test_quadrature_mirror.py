@@ -1,5 +1,5 @@
-"""brdf_fit.core.quadrature.mirror_lobe_rule: exact identities, the exactly normalised Phong lobe, and
-the batched and traced constructions."""
+"""brdf_fit.core.quadrature.mirror_lobe_rule: exact identities, the exactly normalised Phong lobe,
+and the batched and traced constructions."""
 
 import math
 

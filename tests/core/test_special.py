@@ -1,10 +1,12 @@
-"""brdf_fit.core.special.betainc: values against SciPy, a/b/x derivatives against finite differences."""
+"""brdf_fit.core.special.betainc: values against SciPy, a/b/x derivatives against finite
+differences."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.special as sp
+from _helpers import fd_central4
 
 from brdf_fit.core.special import betainc, betaln, lgamma_diff
 
@@ -18,13 +20,7 @@ _vg = jax.jit(jax.vmap(jax.value_and_grad(betainc, argnums=(0, 1, 2))))
 
 def _fd4(fn, args, idx, h):
     """Fourth-order central difference of ``fn`` in argument ``idx`` with step ``h``."""
-
-    def shifted(k):
-        a = list(args)
-        a[idx] = args[idx] + k * h
-        return fn(*a)
-
-    return (8.0 * (shifted(1) - shifted(-1)) - (shifted(2) - shifted(-2))) / (12.0 * h)
+    return fd_central4(lambda t: fn(*args[:idx], t, *args[idx + 1:]), args[idx], h)
 
 
 def test_values_match_scipy():

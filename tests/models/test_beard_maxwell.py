@@ -10,8 +10,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from _helpers import assert_gradient_matches_fd
+from _helpers import assert_model_gradient_matches_fd, dir_from_cos
 from _helpers import eval_jit as _eval
+from _helpers import random_dirs as _random_dirs
 
 from brdf_fit import registry
 from brdf_fit.core.validate import ParameterError
@@ -27,10 +28,7 @@ def model(p, **kw):
 
 
 def random_dirs(rng, n, lo=1e-2):
-    mu = rng.uniform(lo, 1.0, n)
-    phi = rng.uniform(0, 2 * np.pi, n)
-    s = np.sqrt(1 - mu * mu)
-    return np.stack([s * np.cos(phi), s * np.sin(phi), mu], -1)
+    return _random_dirs(rng, n, lo)
 
 
 def fresnel_complex(c, n, k):
@@ -91,7 +89,7 @@ def test_volume_albedo_closed_form():
     """B = 0: E(v) = pi rho_D + 4 pi rho_V [1 - cv ln(1 + 1/cv)] (models.md 4.5, item 6)."""
     m = model({**P, "b": 0.0})
     for cv in (1.0, 0.5, 0.05):
-        wo = np.array([math.sqrt(1 - cv * cv), 0.0, cv])
+        wo = dir_from_cos(cv)
         want = (math.pi * np.asarray(P["rho_d"])
                 + 4 * math.pi * np.asarray(P["rho_v"]) * (1 - cv * math.log(1 + 1 / cv)))
         np.testing.assert_allclose(checks.directional_albedo(m, wo), want, rtol=1e-7)
@@ -116,13 +114,8 @@ def test_gradients_match_finite_differences_lorentzian():
     wi, wo = jnp.asarray(random_dirs(rng, 8, 0.1)), jnp.asarray(random_dirs(rng, 8, 0.1))
     p0 = {k: np.asarray(v, float) for k, v in P.items()}
     p0["k"] = np.asarray([0.1, 0.4, 3.0])
-
-    @jax.jit
-    def f(p):
-        return jnp.sum(model(p, fs_form="lorentzian").eval(wi, wo))
-
-    g = jax.jit(jax.grad(f))({k: jnp.asarray(v) for k, v in p0.items()})
-    assert_gradient_matches_fd(f, g, p0, rel=1e-6, abs=1e-9, relative_step=True)
+    assert_model_gradient_matches_fd(lambda **p: model(p, fs_form="lorentzian"), wi, wo, p0,
+                                     rel=1e-6, abs=1e-9, relative_step=True)
 
 
 def test_bad_parameters_are_named():

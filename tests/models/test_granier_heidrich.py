@@ -15,6 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _helpers import dir_from_cos
 from _helpers import eval_jit as _eval
 from _helpers import vec as _vec
 
@@ -157,7 +158,7 @@ def test_diffuse_albedo_bounded_by_kd():
     """ks = 0: the albedo is kd D (constant in the view), D <= 1, by the library quadrature."""
     m = _model(ks=np.zeros(3), kd=np.ones(3))
     for c in (1.0, 0.3):
-        wo = jnp.array([math.sqrt(1 - c * c), 0.0, c])
+        wo = jnp.asarray(dir_from_cos(c))
         a = np.asarray(albedo.directional_albedo(m, wo))
         D = np.asarray(diffuse_factor(jnp.asarray(PARAMS["eta"]), 70.0))
         np.testing.assert_allclose(a, D, rtol=1e-12)
@@ -167,7 +168,7 @@ def test_diffuse_albedo_bounded_by_kd():
 def test_mirror_hint_matches_fine_generic_rule():
     m = _model()
     for c in (0.9, 0.1):
-        wo = jnp.array([math.sqrt(1 - c * c), 0.0, c])
+        wo = jnp.asarray(dir_from_cos(c))
         a = np.asarray(albedo.directional_albedo(m, wo))
         b = np.asarray(quadrature.integrate(lambda w, wo=wo: m.eval_cos(w, wo),
                                             quadrature.gauss_legendre_hemisphere(384, 768)))

@@ -12,11 +12,17 @@ from __future__ import annotations
 
 import math
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from _helpers import assert_gradient_matches_fd, eval_jit
+from _helpers import (
+    assert_finite,
+    assert_model_gradient_matches_fd,
+    dir_from_cos,
+    eval_jit,
+    random_dirs,
+    values_pdfs_grads,
+)
 
 from brdf_fit import registry
 from brdf_fit.core.validate import ParameterError
@@ -66,16 +72,11 @@ def reference(wi, wo, albedo, tau, g, eta, solid_angle_factor=True):
     return np.where(ok[:, None], f, 0.0)
 
 
-def dirs(rng, n, lo=1e-3):
-    mu = rng.uniform(lo, 1.0, n)
-    phi = rng.uniform(0, 2 * np.pi, n)
-    s = np.sqrt(1 - mu * mu)
-    return np.stack([s * np.cos(phi), s * np.sin(phi), mu], -1)
+dirs = random_dirs
 
 
 def _unit(c, phi=0.3):
-    s = math.sqrt(1 - c * c)
-    return np.array([s * math.cos(phi), s * math.sin(phi), c])
+    return dir_from_cos(c, phi)
 
 
 CASES = [
@@ -149,9 +150,9 @@ def test_thin_layer_limit():
 
 @pytest.mark.parametrize("cos_i", [1.0, 0.6, 0.2])
 def test_energy_balance_in_internal_angles(cos_i):
-    """The reflected flux computed outside (brdf_fit.core.quadrature of f cos over wo, by reciprocity
-    the albedo) equals the single-scattered internal flux leaving through the critical cone,
-    integrated in the layer's own angles: Int_cone T(theta_o') L'(w') mu' dw' with
+    """The reflected flux computed outside (brdf_fit.core.quadrature of f cos over wo, by
+    reciprocity the albedo) equals the single-scattered internal flux leaving through the critical
+    cone, integrated in the layer's own angles: Int_cone T(theta_o') L'(w') mu' dw' with
     L' = W p T_i E (1 - e^(...))/(mu_i + mu_o) and E = 1. This fixes the 1/eta^2."""
     eta, g, tau, W = 1.5, -0.6, 2.0, 0.9
     m = HanrahanKrueger(albedo=W, tau=tau, g=g, eta=eta)
@@ -207,14 +208,8 @@ def test_gradients_match_finite_differences():
     wi, wo = jnp.asarray(dirs(rng, 8, lo=0.1)), jnp.asarray(dirs(rng, 8, lo=0.1))
     p0 = {"albedo": np.array([0.7, 0.5, 0.3]), "tau": np.array([0.8, 1.2, 2.5]),
           "g": np.array(-0.35), "eta": np.array(1.45)}
-    entry = registry.get("hanrahan-krueger")
-
-    @jax.jit
-    def f(p):
-        return jnp.sum(entry.build(**p).eval(wi, wo) * jnp.asarray([1.0, 2.0, 3.0]))
-
-    g = jax.jit(jax.grad(f))({k: jnp.asarray(v) for k, v in p0.items()})
-    assert_gradient_matches_fd(f, g, p0, rel=1e-6, abs=1e-10)
+    assert_model_gradient_matches_fd(registry.get("hanrahan-krueger").build, wi, wo, p0,
+                                     rel=1e-6, abs=1e-10, weights=jnp.asarray([1.0, 2.0, 3.0]))
 
 
 @pytest.mark.parametrize("dtype", [jnp.float64, jnp.float32], ids=["f64", "f32"])
@@ -228,18 +223,9 @@ def test_extreme_parameters_are_finite(dtype):
     grid = {k: jnp.asarray([c[j] for c in combos], dtype)
             for j, k in enumerate(("albedo", "tau", "g", "eta"))}
 
-    def total(p, wi, wo):
-        m = HanrahanKrueger(**p)
-        return jnp.sum(m.eval(wi, wo)) + jnp.sum(m.pdf(wi, wo))
-
-    def one(p):
-        m = HanrahanKrueger(**p)
-        return m.eval(wi, wo), jax.grad(total, argnums=(0, 1, 2))(p, wi, wo)
-
-    vals, grads = jax.jit(jax.vmap(one))(grid)
+    vals, _, grads = values_pdfs_grads(HanrahanKrueger, grid, wi, wo)
     assert vals.dtype == dtype
-    for leaf in jax.tree_util.tree_leaves((vals, grads)):
-        assert np.all(np.isfinite(np.asarray(leaf)))
+    assert_finite((vals, grads))
     assert np.all(np.asarray(vals) >= 0)
 
 

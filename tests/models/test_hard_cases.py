@@ -16,6 +16,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _helpers import assert_finite, values_pdfs_grads
+from _helpers import dir_from_cos as direction
 
 from brdf_fit import registry
 from brdf_fit.verify.checks import hard_case_params
@@ -34,11 +36,6 @@ HARD = {
     "kd": [0.0, 1.0],
     "ks": [0.0, 1.0],
 }
-
-
-def direction(c, phi):
-    s = math.sqrt(max(0.0, 1.0 - c * c))
-    return [s * math.cos(phi), s * math.sin(phi), c]
 
 
 def direction_pairs():
@@ -74,13 +71,6 @@ def param_grid(entry):
     return grid, next(iter(grid.values())).shape[0] if grid else 1
 
 
-def _check_finite(tree, what):
-    for path, leaf in jax.tree_util.tree_leaves_with_path(tree):
-        arr = np.asarray(leaf)
-        bad = ~np.isfinite(arr)
-        assert not bad.any(), f"{what}: {bad.sum()} non-finite entries at {path}"
-
-
 @pytest.mark.parametrize("dtype", [jnp.float64, jnp.float32], ids=["f64", "f32"])
 @pytest.mark.parametrize("entry", registry.entries(), ids=registry.names())
 def test_values_and_gradients_are_finite(entry, dtype):
@@ -88,21 +78,11 @@ def test_values_and_gradients_are_finite(entry, dtype):
     grid = {k: jnp.asarray(v, dtype) for k, v in grid.items()}
     wi = jnp.asarray(WI, dtype)
     wo = jnp.asarray(WO, dtype)
-
-    def total(p, wi, wo):
-        m = entry.build(**p)
-        return jnp.sum(m.eval(wi, wo)) + jnp.sum(m.pdf(wi, wo))
-
-    def one(p):
-        m = entry.build(**p)
-        g = jax.grad(total, argnums=(0, 1, 2))(p, wi, wo)
-        return m.eval(wi, wo), m.pdf(wi, wo), g
-
-    vals, pdfs, grads = jax.jit(jax.vmap(one))(grid)
+    vals, pdfs, grads = values_pdfs_grads(entry.build, grid, wi, wo)
     assert vals.dtype == dtype
-    _check_finite(vals, f"{entry.name} eval")
-    _check_finite(pdfs, f"{entry.name} pdf")
-    _check_finite(grads, f"{entry.name} gradient")
+    assert_finite(vals, f"{entry.name} eval")
+    assert_finite(pdfs, f"{entry.name} pdf")
+    assert_finite(grads, f"{entry.name} gradient")
     assert np.all(np.asarray(vals) >= 0) and np.all(np.asarray(pdfs) >= 0)
     # the exactly-opposite horizon pair and horizon directions evaluate to 0
     assert np.all(np.asarray(vals)[:, -2:] == 0)
@@ -125,6 +105,6 @@ def test_sampling_is_finite_on_hard_cases(entry, dtype):
         return s.wi, s.pdf, s.weight
 
     wi, pdf, weight = jax.jit(jax.vmap(one))(grid)
-    _check_finite((wi, pdf, weight), f"{entry.name} sample")
+    assert_finite((wi, pdf, weight), f"{entry.name} sample")
     assert np.all(np.asarray(pdf) >= 0)
     assert np.all(np.asarray(weight)[np.asarray(pdf) == 0] == 0)

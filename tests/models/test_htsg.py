@@ -14,8 +14,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from _helpers import assert_gradient_matches_fd
+from _helpers import assert_model_gradient_matches_fd, dir_from_cos
 from _helpers import eval_cos_jit as _eval_cos
+from _helpers import eval_jit as _eval_jit
+from _helpers import random_dirs as _random_dirs
 from scipy.optimize import brentq
 from scipy.special import erfc, expi, gammaln, logsumexp
 
@@ -37,11 +39,6 @@ def model(p):
     return HTSG(**{k: jnp.asarray(v) for k, v in p.items()}, wavelength=RGB_WAVELENGTHS)
 
 
-@jax.jit
-def _eval_jit(m, wi, wo):
-    return m.eval(wi, wo)
-
-
 N_PAIRS = 300  # every evaluation is padded to this batch: one compilation for the whole file
 
 
@@ -53,10 +50,7 @@ def _eval(m, wi, wo):
 
 
 def random_dirs(rng, n, lo=1e-2):
-    mu = rng.uniform(lo, 1.0, n)
-    phi = rng.uniform(0, 2 * np.pi, n)
-    s = np.sqrt(1 - mu * mu)
-    return np.stack([s * np.cos(phi), s * np.sin(phi), mu], -1)
+    return _random_dirs(rng, n, lo)
 
 
 # ----------------------------------------------------------------------------- reference
@@ -190,7 +184,7 @@ def test_energy_quadrature_against_brute_force():
     m = model(SMOOTH)
     rule = quadrature.gauss_legendre_hemisphere(256, 512)
     for c in (0.9, 0.2):
-        wo = np.array([math.sqrt(1 - c * c), 0.0, c])
+        wo = dir_from_cos(c)
         e = checks.directional_albedo(m, wo)
         brute = np.asarray(jnp.sum(rule.weights[:, None] * _eval_cos(
             m, rule.directions, jnp.asarray(wo)), axis=0))
@@ -202,14 +196,8 @@ def test_gradients_match_finite_differences_rough():
     wi, wo = jnp.asarray(random_dirs(rng, 8, 0.1)), jnp.asarray(random_dirs(rng, 8, 0.1))
     p0 = {k: np.asarray(v, float) for k, v in ROUGH.items()}
     p0["albedo"] = np.asarray([0.2, 0.5, 0.7])
-
-    vg = jax.jit(jax.value_and_grad(lambda p: jnp.sum(model(p).eval(wi, wo))))
-
-    def f(p):
-        return vg({k: jnp.asarray(v) for k, v in p.items()})[0]
-
-    g = vg({k: jnp.asarray(v) for k, v in p0.items()})[1]
-    assert_gradient_matches_fd(f, g, p0, rel=1e-6, abs=1e-9, relative_step=True)
+    assert_model_gradient_matches_fd(lambda **p: model(p), wi, wo, p0, rel=1e-6, abs=1e-9,
+                                     relative_step=True)
 
 
 @pytest.mark.parametrize("dtype", [jnp.float64, jnp.float32], ids=["f64", "f32"])
@@ -217,8 +205,7 @@ def test_extreme_parameters_finite(dtype):
     """Values and gradients at grazing (1e-7), the horizon, wi = wo, wi = -wo and extreme
     sigma0 (1e-4 .. 5 um: g from 1e-5 to 2e4) and tau."""
     cos = [1e-7, 1e-4, 0.5, 1.0]
-    dirs = [np.array([math.sqrt(1 - c * c) * math.cos(p), math.sqrt(1 - c * c) * math.sin(p), c])
-            for c in cos for p in (0.0, 2.0)]
+    dirs = [dir_from_cos(c, p) for c in cos for p in (0.0, 2.0)]
     wi = [a for a in dirs for _ in dirs] + [np.array([1.0, 0, 0])]
     wo = [b for _ in dirs for b in dirs] + [np.array([-1.0, 0, 0])]
     wi, wo = jnp.asarray(np.asarray(wi), dtype), jnp.asarray(np.asarray(wo), dtype)

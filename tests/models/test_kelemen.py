@@ -11,7 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from _helpers import assert_gradient_matches_fd
+from _helpers import assert_model_gradient_matches_fd, dir_from_cos, fd_central
 from _helpers import eval_jit as _eval
 from _helpers import vec as _dir
 from scipy import integrate
@@ -38,7 +38,7 @@ def spec_reference(wi, wo, f0, m):
 
 def a_s_scipy(mu, f0, m):
     """Int f_s(w', v) cos' dw' over the hemisphere, SciPy dblquad in (theta', phi')."""
-    wo = np.array([math.sqrt(1 - mu * mu), 0.0, mu])
+    wo = dir_from_cos(mu)
 
     def g(phi, th):
         wi = _dir(np.array(th), np.array(phi))
@@ -94,7 +94,7 @@ def test_energy_conserving_and_white_matte_reaches_the_bound(alpha):
     white = Kelemen(rho_m=1.0, f0=0.04, alpha=alpha)
     grey = Kelemen(rho_m=0.5, f0=0.04, alpha=alpha)
     for c in (1.0, 0.5, 0.1, 0.01):
-        wo = jnp.asarray([math.sqrt(1 - c * c), 0.0, c])
+        wo = jnp.asarray(dir_from_cos(c))
         e_white = float(albedo.directional_albedo(white, wo))
         e_grey = float(albedo.directional_albedo(grey, wo))
         assert e_white == pytest.approx(1.0, abs=1e-5)
@@ -108,7 +108,7 @@ def test_table_gradient_matches_finite_differences():
     rule's (~1e-11 here) error, divided by h: hence the absolute tolerance."""
     g = jax.jacfwd(lambda a: albedo_table(a)[0])(0.3)
     h = 1e-6
-    fd = (np.asarray(albedo_table(0.3 + h)[0]) - np.asarray(albedo_table(0.3 - h)[0])) / (2 * h)
+    fd = fd_central(lambda a: np.asarray(albedo_table(a)[0]), 0.3, h)
     np.testing.assert_allclose(g, fd, rtol=1e-5, atol=5e-5)
 
 
@@ -118,14 +118,7 @@ def test_gradients_match_finite_differences():
     wo = jnp.asarray(_dir(np.arccos(rng.uniform(0.2, 1, 8)), rng.uniform(0, 6, 8)))
     params = {"rho_m": np.array([0.6, 0.4, 0.3]), "f0": np.array([0.05, 0.1, 0.2]),
               "alpha": 0.3}
-
-    @jax.jit
-    def f(p):
-        return jnp.sum(ENTRY.build(**p).eval(wi, wo))
-
-    p0 = {k: jnp.asarray(v) for k, v in params.items()}
-    g = jax.jit(jax.grad(f))(p0)
-    assert_gradient_matches_fd(f, g, params, rel=1e-5, abs=1e-9)
+    assert_model_gradient_matches_fd(ENTRY.build, wi, wo, params, rel=1e-5, abs=1e-9)
 
 
 @pytest.mark.parametrize("bad,name", [({"rho_m": [0.5, 1.2, 0.1]}, "'rho_m'"),

@@ -10,10 +10,10 @@ from __future__ import annotations
 
 import math
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _helpers import assert_model_gradient_matches_fd, dir_from_cos, random_angles
 from _helpers import eval_jit as _eval
 from _helpers import pdf_jit as _pdf
 from _helpers import vec as _dirs
@@ -26,7 +26,7 @@ from brdf_fit.verify.chi2 import chi2_test_brdf
 
 
 def _angles(rng, n):
-    return np.arccos(rng.uniform(1e-3, 1.0, n)), rng.uniform(0.0, 2 * np.pi, n)
+    return random_angles(rng, n)
 
 
 def lewis_reference(ti, pi_, to, po, kd, ks, n):
@@ -113,7 +113,7 @@ def test_albedo_decreases_towards_grazing_and_conserves():
 @pytest.mark.parametrize("n,cos_o", [(5.0, 0.3), (200.0, 0.8)])
 def test_sampler_matches_pdf(n, cos_o):
     m = Lewis(kd=0.3, ks=0.6, exponent=n)
-    wo = jnp.asarray([math.sqrt(1 - cos_o**2), 0.0, cos_o])
+    wo = jnp.asarray(dir_from_cos(cos_o))
     res = chi2_test_brdf(m, wo, n_samples=50_000, seed=7, test_count=2)
     assert res.passed, res.reasons
 
@@ -123,19 +123,8 @@ def test_gradients_match_finite_differences():
     to, po = _angles(rng, 12)
     ti, pi_ = np.clip(to + rng.normal(0, 0.2, 12), 0.0, 1.5), po + np.pi + rng.normal(0, 0.2, 12)
     wi, wo = jnp.asarray(_dirs(ti, pi_)), jnp.asarray(_dirs(to, po))
-
-    def f(p):
-        return jnp.sum(Lewis(kd=p["kd"], ks=p["ks"], exponent=p["n"]).eval(wi, wo))
-
-    p0 = {"kd": jnp.asarray([0.3, 0.2]), "ks": jnp.asarray([0.5, 0.4]), "n": jnp.asarray(17.0)}
-    g = jax.grad(f)(p0)
-    h = 1e-6
-    for k in ("kd", "ks", "n"):
-        for j in range(p0[k].size):
-            e = jnp.zeros(p0[k].shape).at[(j,) if p0[k].ndim else ()].set(h)
-            fd = (f({**p0, k: p0[k] + e}) - f({**p0, k: p0[k] - e})) / (2 * h)
-            got = float(np.atleast_1d(g[k])[j])
-            assert got == pytest.approx(float(fd), rel=1e-6, abs=1e-9), (k, j)
+    p0 = {"kd": [0.3, 0.2], "ks": [0.5, 0.4], "exponent": 17.0}
+    assert_model_gradient_matches_fd(Lewis, wi, wo, p0, rel=1e-6, abs=1e-9)
 
 
 def test_parameter_errors():

@@ -14,6 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _helpers import assert_gradient_matches_fd, dir_from_cos, random_angles
 from _helpers import draw_jit as _draw
 from _helpers import eval_jit as _eval
 from _helpers import vec as _dirs
@@ -27,7 +28,7 @@ from brdf_fit.verify.chi2 import chi2_test_brdf
 
 def _angles(rng, n):
     """Polar angles uniform in solid angle on the upper hemisphere (cos in [1e-3, 1])."""
-    return np.arccos(rng.uniform(1e-3, 1.0, n)), rng.uniform(0.0, 2 * np.pi, n)
+    return random_angles(rng, n)
 
 
 def minnaert_reference(theta_i, theta_o, rho, k):
@@ -80,7 +81,7 @@ def test_albedo_closed_form(k, cos_o):
     2.6e-6 relative for k = 0.3, 5e-8 for k = 0.75)."""
     rho = 0.6
     m = Minnaert(rho=rho, k=k)
-    wo = np.array([math.sqrt(1 - cos_o**2), 0.0, cos_o])
+    wo = dir_from_cos(cos_o)
     exact = rho * cos_o ** (k - 1)
     # Int_0^1 2 pi f(mu) mu dmu with mu = t^(1/(k+1)), dmu = t^(1/(k+1) - 1)/(k+1) dt
     x, w = np.polynomial.legendre.leggauss(16)
@@ -113,7 +114,7 @@ def test_sampler_is_exact_and_zero_variance(k):
     """Every weight equals the albedo rho cv^(k-1); the pdf matches the draws (chi-square)."""
     m = Minnaert(rho=jnp.asarray([0.8, 0.4, 0.2]), k=k)
     cos_o = 0.3
-    wo = jnp.asarray([math.sqrt(1 - cos_o**2), 0.0, cos_o])
+    wo = jnp.asarray(dir_from_cos(cos_o))
     rng = np.random.default_rng(13)
     n = 20_000
     wi, pdf, weight = map(np.asarray, _draw(m, wo, jnp.asarray(rng.random(n)),
@@ -137,14 +138,9 @@ def test_gradients_match_finite_differences():
 
     for k0 in (0.4, 1.0, 2.2):
         p0 = {"rho": jnp.asarray([0.6, 0.3]), "k": jnp.asarray(k0)}
-        g = jax.grad(f)(p0)
-        h = 1e-6
-        fd_k = (f({**p0, "k": p0["k"] + h}) - f({**p0, "k": p0["k"] - h})) / (2 * h)
-        assert float(g["k"]) == pytest.approx(float(fd_k), rel=1e-6)
-        for j in range(2):
-            e = jnp.zeros(2).at[j].set(h)
-            fd = (f({**p0, "rho": p0["rho"] + e}) - f({**p0, "rho": p0["rho"] - e})) / (2 * h)
-            assert float(g["rho"][j]) == pytest.approx(float(fd), rel=1e-7)
+        # pytest.approx's default abs = 1e-12
+        assert_gradient_matches_fd(f, jax.grad(f)(p0), p0, rel={"k": 1e-6, "rho": 1e-7},
+                                   abs=1e-12)
 
 
 def test_gradients_finite_at_grazing_float32():

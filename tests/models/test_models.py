@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _helpers import assert_model_gradient_matches_fd, dir_from_cos, random_dirs
 from _lobe_quadrature import gauss_hemisphere, halfvector_rule
 
 from brdf_fit import ParameterError, astype, registry
@@ -26,10 +27,7 @@ def declared(entry, check):
 
 
 def dirs(rng, n, lo=1e-3):
-    mu = rng.uniform(lo, 1.0, n)
-    phi = rng.uniform(0, 2 * np.pi, n)
-    s = np.sqrt(1 - mu * mu)
-    return jnp.asarray(np.stack([s * np.cos(phi), s * np.sin(phi), mu], -1))
+    return jnp.asarray(random_dirs(rng, n, lo))
 
 
 @pytest.fixture(scope="module")
@@ -156,8 +154,7 @@ def test_sample_weight_is_eval_cos_over_pdf(entry, models):
 def test_pdf_integrates_to_one_minus_failure_probability(entry, models, cos_o):
     """Int_{H+} pdf(wi) dwi = 1 - P(fail), P(fail) estimated from sample (binomial tolerance)."""
     m = models[entry.name]
-    wo = np.array([math.sqrt(1 - cos_o**2) * math.cos(0.3), math.sqrt(1 - cos_o**2) * math.sin(0.3),
-                   cos_o])
+    wo = dir_from_cos(cos_o, 0.3)
     wi, w = halfvector_rule(wo, lobe_width(entry, m))
     integral = float(jnp.sum(w * m.pdf(jnp.asarray(wi), jnp.asarray(wo))))
     n = 200_000
@@ -236,21 +233,5 @@ def test_gradients_match_finite_differences(entry):
     d = entry.defaults()
     # move unit-interval parameters away from their bounds so central differences stay inside
     p0 = {k: np.clip(v, 0.05, 0.95) if entry.param(k).hi == 1.0 else v for k, v in d.items()}
-
-    def f(p):
-        return jnp.sum(entry.build(**p).eval(wi, wo))
-
-    g = jax.grad(f)({k: jnp.asarray(v) for k, v in p0.items()})
-    for k, v in p0.items():
-        flat = np.atleast_1d(v).astype(float)
-        for j in range(flat.size):
-            h = 1e-6 * max(1.0, abs(flat[j]))
-            up, dn = flat.copy(), flat.copy()
-            up[j] += h
-            dn[j] -= h
-            shape = np.shape(v)
-            fp = float(f({**p0, k: up.reshape(shape)}))
-            fm = float(f({**p0, k: dn.reshape(shape)}))
-            fd = (fp - fm) / (2 * h)
-            got = float(np.atleast_1d(g[k])[j])
-            assert got == pytest.approx(fd, rel=1e-5, abs=1e-8), (k, j)
+    assert_model_gradient_matches_fd(entry.build, wi, wo, p0, rel=1e-5, abs=1e-8,
+                                     relative_step=True)

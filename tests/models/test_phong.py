@@ -14,6 +14,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _helpers import dir_from_cos, fd_central, random_dirs
+from _helpers import draw_jit as _draw
 from _helpers import eval_cos_jit as _eval_cos
 from _helpers import eval_jit as _eval
 from _helpers import pdf_jit as _pdf
@@ -60,15 +62,11 @@ CHI2_COUNT = len(CHI2_CASES)  # Sidak correction over every chi-square test in t
 
 
 def _dir(cos, phi=0.3):
-    s = math.sqrt(max(0.0, 1.0 - cos * cos))
-    return np.array([s * math.cos(phi), s * math.sin(phi), cos])
+    return dir_from_cos(cos, phi)
 
 
 def _random_dirs(rng, n, lo=-1.0):
-    mu = rng.uniform(lo, 1.0, n)
-    phi = rng.uniform(0, 2 * np.pi, n)
-    s = np.sqrt(1 - mu * mu)
-    return np.stack([s * np.cos(phi), s * np.sin(phi), mu], -1)
+    return random_dirs(rng, n, lo)
 
 
 # ----------------------------------------------------------------------------- quadrature
@@ -107,12 +105,6 @@ def _width(n):
     return 1.0 / math.sqrt(n + 1.0)
 
 
-
-
-@jax.jit
-def _draw(model, wo, uc, u):
-    s = model.sample(jnp.broadcast_to(wo, u.shape[:-1] + (3,)), uc, u)
-    return s.wi, s.pdf, s.weight
 
 
 def _samples(model, wo, n=200_000, seed=0):
@@ -331,7 +323,7 @@ def test_gradient_exponent_matches_finite_difference(idx):
     model = _grad_models(n0)[idx]
     g = _grad_n(model, jnp.asarray(n0), wi, wo, uc, u)
     h = 1e-5
-    fd = (_loss(model, n0 + h, wi, wo, uc, u) - _loss(model, n0 - h, wi, wo, uc, u)) / (2 * h)
+    fd = fd_central(lambda n: _loss(model, n, wi, wo, uc, u), n0, h)
     assert np.isfinite(float(g))
     assert abs(float(g) - float(fd)) <= 1e-6 * max(1.0, abs(float(fd)))
 

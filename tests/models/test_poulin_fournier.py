@@ -14,6 +14,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _helpers import assert_gradient_matches_fd, vec
+from _helpers import eval_jit as _eval
 from scipy import integrate
 
 from brdf_fit.core.validate import ParameterError
@@ -110,14 +112,10 @@ def _random_angles(n, seed):
 
 
 def _to_dirs(th, ph):
-    return jnp.asarray(np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)],
-                                -1))
+    return jnp.asarray(vec(th, ph))
 
 
 # ----------------------------------------------------------------------------- tests
-
-_eval = jax.jit(lambda model, wi, wo: model.eval(wi, wo))  # shared: one compile per model shape
-
 
 def test_visibility_limits_match_ray_casting():
     rng = np.random.default_rng(0)
@@ -192,10 +190,8 @@ def _loss(p):
 def test_gradients_match_finite_differences():
     p0 = jnp.asarray([0.3, 0.5, 12.0, 1.3])
     g = np.asarray(jax.grad(_loss)(p0))
-    for k in range(4):
-        h = 1e-5 * max(1.0, abs(float(p0[k])))
-        fd = (float(_loss(p0.at[k].add(h))) - float(_loss(p0.at[k].add(-h)))) / (2 * h)
-        assert abs(g[k] - fd) <= 1e-6 * max(abs(fd), 1e-3), (k, g[k], fd)
+    # |g - fd| <= 1e-6 max(|fd|, 1e-3)
+    assert_gradient_matches_fd(_loss, g, p0, rel=1e-6, abs=1e-9, h=1e-5, relative_step=True)
 
 
 def test_hard_directions_finite_gradients():

@@ -8,17 +8,24 @@ Quadratures here use tests/_lobe_quadrature.py, not brdf_fit.core.quadrature.
 
 from __future__ import annotations
 
+import functools
 import math
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.special
+from _helpers import (
+    assert_finite,
+    assert_model_gradient_matches_fd,
+    assert_sampling_finite,
+    eval_cos_and_pdf,
+    random_angles,
+    values_pdfs_grads,
+)
 from _helpers import eval_cos_jit as _eval_cos
 from _helpers import eval_jit as _eval
 from _helpers import pdf_jit as _pdf
-from _helpers import sample_jit
 from _helpers import vec as _vec
 from _lobe_quadrature import halfvector_rule
 
@@ -31,9 +38,8 @@ from brdf_fit.verify import checks
 from brdf_fit.verify.albedo import directional_albedo
 from brdf_fit.verify.chi2 import chi2_test_brdf
 
-
-def _angles(rng, n, lo=1e-3):
-    return np.arccos(rng.uniform(lo, 1.0, n)), rng.uniform(-np.pi, np.pi, n)
+#: polar angles from cosines uniform in [lo, 1], azimuths uniform in [-pi, pi)
+_angles = functools.partial(random_angles, phi_range=(-np.pi, np.pi))
 
 
 def reference(theta_i, phi_i, theta_o, phi_o, C, r, p):
@@ -167,16 +173,8 @@ def test_gradients_match_finite_differences():
     to, po = _angles(rng, 40, lo=0.05)
     wi, wo = jnp.asarray(_vec(ti, pi_)), jnp.asarray(_vec(to, po))
     p0 = {"f0": 0.4, "r": 0.2, "p": 0.6}
-
-    def loss(q):
-        m = Schlick1994(**q)
-        return jnp.sum(m.eval_cos(wi, wo)) + 1e-2 * jnp.sum(m.pdf(wi, wo))
-
-    g = jax.jit(jax.grad(loss))({k: jnp.asarray(v) for k, v in p0.items()})
-    for k, v in p0.items():
-        h = 1e-6
-        fd = (float(loss({**p0, k: v + h})) - float(loss({**p0, k: v - h}))) / (2 * h)
-        assert float(g[k]) == pytest.approx(fd, rel=1e-6, abs=1e-10), k
+    assert_model_gradient_matches_fd(Schlick1994, wi, wo, p0, rel=1e-6, abs=1e-10,
+                                     objective=eval_cos_and_pdf)
 
 
 def test_extreme_parameters_finite():
@@ -186,30 +184,11 @@ def test_extreme_parameters_finite():
     P = {k: np.array([g[i] for g in grid]) for i, k in enumerate(("f0", "r", "p"))}
     for dt in (jnp.float64, jnp.float32):
         wi, wo = jnp.asarray(WI, dt), jnp.asarray(WO, dt)
-
-        def total(q, wi, wo):
-            m = Schlick1994(**q)
-            return jnp.sum(m.eval(wi, wo)) + jnp.sum(m.pdf(wi, wo))
-
-        def one(q, wi=wi, wo=wo):
-            m = Schlick1994(**q)
-            return m.eval(wi, wo), m.pdf(wi, wo), jax.grad(total, argnums=(0, 1, 2))(q, wi, wo)
-
-        out = jax.jit(jax.vmap(one))({k: jnp.asarray(v, dt) for k, v in P.items()})
-        for leaf in jax.tree_util.tree_leaves(out):
-            assert np.all(np.isfinite(np.asarray(leaf))), dt
+        out = values_pdfs_grads(Schlick1994, {k: jnp.asarray(v, dt) for k, v in P.items()}, wi, wo)
+        assert_finite(out, str(dt))
         assert np.all(np.asarray(out[0]) >= 0) and np.all(np.asarray(out[1]) >= 0)
-        us = jnp.asarray([0.0, 1e-7, 0.5, 1 - 1e-7], dt)
-        u = jnp.stack(jnp.meshgrid(us, us), -1).reshape(-1, 2)
         for r, p in ((1e-4, 1e-3), (1.0, 1.0)):
-            m = astype(Schlick1994(f0=0.5, r=r, p=p), dt)
-            for c in (1e-7, 0.5, 1.0):
-                w = jnp.broadcast_to(jnp.asarray(_vec(np.array(math.acos(c)), np.array(0.4)), dt),
-                                     (16, 3))
-                s = sample_jit(m, w, jnp.linspace(0.0, 1 - 1e-7, 16, dtype=dt), u)
-                for x in (s.wi, s.pdf, s.weight):
-                    assert np.all(np.isfinite(np.asarray(x)))
-                assert np.all(np.asarray(s.weight)[np.asarray(s.pdf) == 0] == 0)
+            assert_sampling_finite(astype(Schlick1994(f0=0.5, r=r, p=p), dt), dt)
 
 
 def test_parameter_errors_name_the_parameter():

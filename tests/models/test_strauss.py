@@ -8,15 +8,22 @@ brdf_fit.models.phong. Quadratures here use tests/_lobe_quadrature.py, not brdf_
 
 from __future__ import annotations
 
+import functools
 import math
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _helpers import (
+    assert_finite,
+    assert_model_gradient_matches_fd,
+    assert_sampling_finite,
+    eval_cos_and_pdf,
+    random_angles,
+    values_pdfs_grads,
+)
 from _helpers import eval_cos_jit as _eval_cos
 from _helpers import eval_jit as _eval
-from _helpers import sample_jit
 from _helpers import vec as _vec
 from _lobe_quadrature import gauss_hemisphere
 
@@ -31,8 +38,8 @@ from brdf_fit.verify.chi2 import chi2_test_brdf
 KF, KS, KJ = 1.12, 1.01, 0.1
 
 
-def _angles(rng, n, lo=1e-3):
-    return np.arccos(rng.uniform(lo, 1.0, n)), rng.uniform(-np.pi, np.pi, n)
+#: polar angles from cosines uniform in [lo, 1], azimuths uniform in [-pi, pi)
+_angles = functools.partial(random_angles, phi_range=(-np.pi, np.pi))
 
 
 def reference(L, V, C, s, m, t=0.0):
@@ -133,16 +140,8 @@ def test_gradients_match_finite_differences():
     wi = jnp.asarray(_vec(*_angles(rng, 40, lo=0.05)))
     wo = jnp.asarray(_vec(*_angles(rng, 40, lo=0.05)))
     p0 = {"color": 0.6, "smoothness": 0.55, "metalness": 0.4, "transparency": 0.2}
-
-    def loss(q):
-        m = Strauss(**q)
-        return jnp.sum(m.eval_cos(wi, wo)) + 1e-2 * jnp.sum(m.pdf(wi, wo))
-
-    g = jax.jit(jax.grad(loss))({k: jnp.asarray(v) for k, v in p0.items()})
-    for k, v in p0.items():
-        h = 1e-6
-        fd = (float(loss({**p0, k: v + h})) - float(loss({**p0, k: v - h}))) / (2 * h)
-        assert float(g[k]) == pytest.approx(fd, rel=1e-6, abs=1e-10), k
+    assert_model_gradient_matches_fd(Strauss, wi, wo, p0, rel=1e-6, abs=1e-10,
+                                     objective=eval_cos_and_pdf)
 
 
 def test_extreme_parameters_finite():
@@ -153,29 +152,12 @@ def test_extreme_parameters_finite():
          enumerate(("color", "smoothness", "metalness"))}
     for dt in (jnp.float64, jnp.float32):
         wi, wo = jnp.asarray(WI, dt), jnp.asarray(WO, dt)
-
-        def total(q, wi, wo):
-            m = Strauss(**q)
-            return jnp.sum(m.eval(wi, wo)) + jnp.sum(m.pdf(wi, wo))
-
-        def one(q, wi=wi, wo=wo):
-            m = Strauss(**q)
-            return m.eval(wi, wo), m.pdf(wi, wo), jax.grad(total, argnums=(0, 1, 2))(q, wi, wo)
-
-        out = jax.jit(jax.vmap(one))({k: jnp.asarray(v, dt) for k, v in P.items()})
-        for leaf in jax.tree_util.tree_leaves(out):
-            assert np.all(np.isfinite(np.asarray(leaf))), dt
+        out = values_pdfs_grads(Strauss, {k: jnp.asarray(v, dt) for k, v in P.items()}, wi, wo)
+        assert_finite(out, str(dt))
         assert np.all(np.asarray(out[0]) >= 0) and np.all(np.asarray(out[1]) >= 0)
-        us = jnp.asarray([0.0, 1e-7, 0.5, 1 - 1e-7], dt)
-        u = jnp.stack(jnp.meshgrid(us, us), -1).reshape(-1, 2)
         for s in (0.0, 1.0):
-            m = astype(Strauss(color=0.5, smoothness=s, metalness=0.5), dt)
-            for c in (1e-7, 0.5, 1.0):
-                w = jnp.broadcast_to(jnp.asarray(_vec(np.array(math.acos(c)), np.array(0.4)), dt),
-                                     (16, 3))
-                smp = sample_jit(m, w, jnp.linspace(0.0, 1 - 1e-7, 16, dtype=dt), u)
-                for x in (smp.wi, smp.pdf, smp.weight):
-                    assert np.all(np.isfinite(np.asarray(x)))
+            assert_sampling_finite(astype(Strauss(color=0.5, smoothness=s, metalness=0.5), dt), dt,
+                                   failed_weight_zero=False)
     assert float(Strauss(smoothness=1.0).exponent()) == pytest.approx(1e6)
 
 

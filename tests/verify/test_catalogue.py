@@ -1,5 +1,5 @@
-"""The catalogue table (brdf_fit.verify.catalogue): generated from the registry, the checks' declared
-outcomes and the measured costs; the README shows exactly the generated table."""
+"""The catalogue table (brdf_fit.verify.catalogue): generated from the registry, the checks'
+declared outcomes and the measured costs; the README shows exactly the generated table."""
 
 import json
 from pathlib import Path

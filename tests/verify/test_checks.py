@@ -1,5 +1,6 @@
-"""brdf_fit.verify.checks: every registered model passes (or declares its expected failures), and every
-check rejects its negative control (a check that cannot fail looks the same as one that passes).
+"""brdf_fit.verify.checks: every registered model passes (or declares its expected failures), and
+every check rejects its negative control (a check that cannot fail looks the same as one that
+passes).
 """
 
 import json

@@ -218,6 +218,48 @@ def test_reported_terms_sum_to_the_statistic_of_a_run():
 
 
 # --------------------------------------------------------------------------------------------
+# Monte Carlo p-values
+# --------------------------------------------------------------------------------------------
+
+
+def test_monte_carlo_p_value_matches_the_exact_binomial_tail():
+    """Two bins (E = 5, 15 of n = 20): the statistic is ``(O1 - 5)^2 (1/5 + 1/15)``, so
+    ``P(T >= T(O1 = 11)) = P(O1 >= 11)`` exactly; the simulated statistics that equal the observed
+    one (a tie) count as exceedances."""
+    be, n = np.array([5.0, 15.0]), 20
+    t_obs = (11 - 5) ** 2 * (1 / 5 + 1 / 15)
+    exact = stats.binom.sf(10, n, 0.25)  # 0.0039
+    p, draws = chi2.monte_carlo_sf(t_obs, be, n, 200_000, seed=3)
+    assert draws == 200_000
+    assert abs(p - exact) < 4.0 * math.sqrt(exact / draws), (p, exact)
+    assert chi2.monte_carlo_sf(t_obs, be, n, 20_000, seed=3) == chi2.monte_carlo_sf(
+        t_obs, be, n, 20_000, seed=3)  # deterministic
+
+
+def test_chi2_approximation_understates_the_far_tail_of_small_bins():
+    """Why the Monte Carlo p-value exists: with ten bins of E = 5 the statistic exceeds the
+    chi-square(10) quantile of 1e-4 about 7x as often (Poisson tails are heavier than normal
+    ones), while the rule E >= 5 is met."""
+    be = np.array([5.0] * 10 + [1e5 - 50.0])
+    t = stats.chi2.isf(1e-4, be.size - 1)
+    p, _ = chi2.monte_carlo_sf(t, be, 100_000, 200_000, seed=1)
+    assert p > 3e-4, p
+
+
+def test_inconclusive_p_value_is_replaced_by_the_monte_carlo_one():
+    """A chi-square p-value within ``(threshold * MC_WINDOW, threshold]`` is replaced by the Monte
+    Carlo one (``mc_draws`` draws); above the threshold, or with ``monte_carlo=False``, it stays."""
+    r0 = chi2.chi2_test(cosine_sample, cosine_pdf, n_samples=N)
+    assert r0.passed and r0.mc_draws == 0 and r0.p_value == r0.p_value_chi2
+    alpha = min(0.99, 1.5 * r0.p_value)  # the chi-square p-value is now inconclusive
+    r = chi2.chi2_test(cosine_sample, cosine_pdf, n_samples=N, alpha=alpha)
+    assert r.mc_draws > 0 and r.p_value_chi2 == r0.p_value and r.statistic == r0.statistic
+    assert r.passed == (r.p_value > r.threshold) and "Monte Carlo" in str(r)
+    off = chi2.chi2_test(cosine_sample, cosine_pdf, n_samples=N, alpha=alpha, monte_carlo=False)
+    assert off.mc_draws == 0 and off.p_value == r0.p_value and not off.passed
+
+
+# --------------------------------------------------------------------------------------------
 # Correct samplers pass
 # --------------------------------------------------------------------------------------------
 
