@@ -103,6 +103,8 @@ def _eta(default=1.5, doc="relative index of refraction eta_t/eta_i", channels=T
 
 
 def _gold_eta():
+    # imported on first use: spectra loads colour-science (0.8 s here), which a registry
+    # look-up without a gold default never needs
     from brdf_fit.core import spectra
 
     return spectra.rgb_nk("Au")[0]
