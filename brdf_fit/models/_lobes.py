@@ -195,13 +195,18 @@ class HalfGeometry(NamedTuple):
 def half_geometry(wi, wo) -> HalfGeometry:
     """The half-vector geometry of a microfacet-type lobe: ``valid`` where both directions are
     above the horizon and ``h`` exists; on the other lanes ``wi``, ``wo`` and ``h`` are replaced
-    by the normal before any formula sees them (so ``d = wo.h = 1`` there)."""
+    by the normal before any formula sees them (so ``d = wo.h = 1`` there).
+
+    ``d`` is clamped at 0: for unit directions ``wo.h = |wi + wo|/2 >= 0``, but directions unit
+    only to rounding (length 1 +- 1e-6) at a grazing, near-mirror pair make ``1 + wi.wo``, hence
+    ``wo.h``, negative (-5e-3 at cos = 1e-4), which gave negative V-cavity values and
+    half-vector pdfs (issue 16). Consumers read ``d = 0`` as the limit ``wo.h -> 0+``."""
     (ix, iy, iz), (ox, oy, oz), (hx, hy, hz), hok = half_vector(wi, wo)
     valid = (iz > 0) & (oz > 0) & hok
     i = sanitize(valid, ix, iy, iz)
     o = sanitize(valid, ox, oy, oz)
     h = sanitize(valid, hx, hy, hz)
-    d = o[0] * h[0] + o[1] * h[1] + o[2] * h[2]
+    d = jnp.maximum(o[0] * h[0] + o[1] * h[1] + o[2] * h[2], 0.0)
     return HalfGeometry(valid, i, o, h, d)
 
 

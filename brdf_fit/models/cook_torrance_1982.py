@@ -64,9 +64,12 @@ def beckmann_ct1982(hx, hy, hz, m):
     pos = hz > 0
     hzs = jnp.where(pos, hz, 1.0)
     t2 = (hx * hx + hy * hy) / (hzs * hzs)
-    e = -t2 / (m * m) - 4.0 * jnp.log(hzs)
+    # (1/m)^2 rather than a division by m^2: reverse mode divides the cotangent by (m^2)^2 =
+    # 1e-16 at m = 1e-4, which overflowed float32 at a grazing mirror pair (NaN; issue 16)
+    inv_m = 1.0 / m
+    e = -t2 * inv_m * inv_m - 4.0 * jnp.log(hzs)
     ok = pos & (e > EXP_UNDERFLOW)
-    return jnp.where(ok, jnp.exp(jnp.where(ok, e, 0.0)) / (m * m), 0.0)
+    return jnp.where(ok, jnp.exp(jnp.where(ok, e, 0.0)) * inv_m * inv_m, 0.0)
 
 
 class CookTorrance1982Specular(AbstractBRDF):
@@ -101,8 +104,11 @@ class CookTorrance1982Specular(AbstractBRDF):
         # G/((n.l)(n.v)) = min(1/((n.l)(n.v)), 2 (n.h)/((n.l)(v.h)), 2 (n.h)/((n.v)(v.h))):
         # the same minimum with each term divided by (n.l)(n.v), so no G ~ 0 is multiplied by a
         # huge 1/((n.l)(n.v)) at grazing
-        g_over = jnp.minimum(safe_div(1.0, iz * oz),
-                             jnp.minimum(safe_div(2.0 * hz, iz * c), safe_div(2.0 * hz, oz * c)))
+        # c = 0 (clamped by half_geometry from a rounding-level negative v.h): the limit c -> 0+,
+        # where the groove terms are +inf and G = 1
+        g_a = safe_div(1.0, iz) * safe_div(1.0, oz)  # not 1/(iz oz): float32 gradients overflow
+        g_over = jnp.where(c > 0, jnp.minimum(
+            g_a, jnp.minimum(safe_div(2.0 * hz, iz * c), safe_div(2.0 * hz, oz * c))), g_a)
         ch = self.channels()
         F = dielectric(expand_channels(c, ch), self.eta)
         Rs = F * expand_channels(D * g_over * INV_PI, ch)

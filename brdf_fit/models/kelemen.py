@@ -179,12 +179,16 @@ class Kelemen(AbstractBRDF):
         return valid, iz, oz, h, c
 
     def eval(self, wi, wo):
-        valid, iz, oz, (hx, hy, hz), c = self._geometry(wi, wo)
+        valid, (ix, iy, iz), (ox, oy, oz), (hx, hy, hz), c = half_geometry(wi, wo)
         ch = self.channels()
         A, B, a_bar = self._coupling()
         D = _beckmann(self.alpha).D(hx, hy, hz)
         F = schlick(expand_channels(c, ch), self.f0)
-        spec = F * expand_channels(safe_div(D, 4.0 * c * c), ch)
+        # Kelemen's 1/(H.H), H = l + v unnormalised (= 1/(4 c^2) for unit directions), divided
+        # by |H| twice: through c = v.h the float32 gradient at a grazing mirror pair
+        # (|H| = 2e-8) overflowed to NaN, and c clamped at 0 (off-unit pairs) gave 0 (issue 16)
+        hl = jnp.sqrt((ix + ox) ** 2 + (iy + oy) ** 2 + (iz + oz) ** 2)
+        spec = F * expand_channels(safe_div(safe_div(D, hl), hl), ch)
         one_l = jnp.maximum(1.0 - self._a_s(A, B, iz), 0.0)
         one_v = jnp.maximum(1.0 - self._a_s(A, B, oz), 0.0)
         den = 1.0 - a_bar

@@ -2,7 +2,9 @@
 
 Grid (issue "Foundation", Done means): cos(theta) in {1e-7, 1e-4, 1e-2, 0.5, 1} for both
 directions, in generic position, with wi == wo, wi == mirror(wo), and both directions grazing at
-opposite azimuths (the half vector vanishes in the limit; exactly on the horizon it does vanish);
+opposite azimuths (the half vector vanishes in the limit; exactly on the horizon it does vanish),
+grazing near-mirror pairs unit only to rounding (length 1 +- 1e-6, or float32-normalised) and the
+grazing mirror pair wi = (-1, 0, 1e-8), wo = (1, 0, 1e-8);
 alpha in {1e-4, 1e-3, 0.05, 0.5, 1}, k in {0, 1, 100}, eta in {1, 1.5, 1/1.5}; Blinn-Phong
 exponents up to 1e6; every other parameter (the catalogue's sigma, nu, tau, lobe coefficients,
 ...) at the ends of its interval, one at a time. Gradients are taken with respect to both
@@ -38,6 +40,11 @@ HARD = {
 }
 
 
+def _float32_normalised(w):
+    w = np.asarray(w, np.float32)
+    return (w / np.sqrt(np.sum(w * w, dtype=np.float32))).astype(np.float64)
+
+
 def direction_pairs():
     wi, wo = [], []
     for ci, co in itertools.product(COS, COS):
@@ -53,6 +60,22 @@ def direction_pairs():
         wo.append(w)
         wi.append([-w[0], -w[1], w[2]])  # wi == mirror(wo)
         wo.append(w)
+    # directions unit only to rounding (issue 16): grazing near-mirror pairs with one direction
+    # of length 1 +- 1e-6, and both normalised in float32 (negative wo.h gave negative values)
+    for c in COS[:3]:
+        w = np.asarray(direction(c, 0.4))
+        m = np.asarray([-w[0], -w[1], w[2]])
+        for scale in (1 + 1e-6, 1 - 1e-6):
+            wi.append(m * scale)
+            wo.append(w)
+            wi.append(m)
+            wo.append(w * scale)
+        wi.append(_float32_normalised(m))
+        wo.append(_float32_normalised(w))
+    # a grazing mirror pair below the COS grid (float32 gradients were NaN at alpha = 1e-4 in
+    # the V-cavity models and kelemen, issue 16)
+    wi.append([-1.0, 0.0, 1e-8])
+    wo.append([1.0, 0.0, 1e-8])
     # exactly on the horizon, opposite: wi == -wo, the half vector is exactly zero
     wi.append([1.0, 0.0, 0.0])
     wo.append([-1.0, 0.0, 0.0])
