@@ -385,11 +385,16 @@ def _param_rows(result, channels) -> list[str]:
         v = np.atleast_1d(np.asarray(value, float))
         se = result.stderr.get(name)
         se = None if se is None else np.atleast_1d(np.asarray(se, float))
+        note = getattr(result, "stderr_note", {}).get(name)
+        note = None if note is None else np.atleast_1d(np.asarray(note, object))
         for j, x in enumerate(v):
             label = name if v.size == 1 else (
                 f"{name}[{channels[j]}]" if len(channels) == v.size else f"{name}[{j}]")
+            why = str(note[j]) if note is not None and note.size == v.size else ""
             err = "(fixed)" if name in result.fixed else (
-                f"+- {se[j]:.3g}" if se is not None else "")
+                "" if se is None else
+                f"stderr undefined: {why or 'not finite'}" if not np.isfinite(se[j]) else
+                f"+- {se[j]:.3g}")
             rows.append(f"  {label:<16} {x:12.6g}  {err}")
     return rows
 
@@ -403,7 +408,7 @@ def _print_fit(result, data, path: str) -> None:
         print(row)
     if result.at_bound:
         print(f"  at an interval end: {', '.join(result.at_bound)} (a limit, not an optimum; "
-              "its standard error means nothing)")
+              "no standard error)")
     status = "yes" if result.converged else f"NO ({result.message})"
     print(f"converged: {status}; steps: {result.steps}; starts: {result.starts}; "
           f"residual rms: {result.residual_rms:.6g}; time: {result.seconds:.2f} s")
@@ -477,18 +482,28 @@ def _read_many(paths, skip_bad: bool):
 
 
 def _batch_rows(paths, res, channels) -> list[dict]:
+    from brdf_fit.fitting.single import json_floats  # loaded with fit_batch already
+
     rows = []
     for b, path in enumerate(paths):
         rows.append({
             "file": path, "model": res.model_name,
             "params": {k: np.asarray(v[b]).tolist() for k, v in res.params.items()},
-            "stderr": {k: np.asarray(v[b]).tolist() for k, v in res.stderr.items()},
+            "stderr": {k: json_floats(v[b]) for k, v in res.stderr.items()},
+            "stderr_note": {k: np.asarray(v[b]).tolist() for k, v in res.stderr_note.items()
+                            if (np.asarray(v[b]) != "").any()},
             "converged": bool(res.converged[b]), "steps": int(res.steps[b]),
             "metric": res.metric, "residual_rms": float(res.residual_rms[b]),
             "n_samples": int(res.n_samples[b]), "channels": list(channels),
             "at_bound": [k for k, v in res.at_bound.items() if np.asarray(v[b]).any()],
         })
     return rows
+
+
+def _note_text(v) -> str:
+    """A stderr_note entry (one reason, or one per channel; "" where defined) as text."""
+    a = [str(x) for x in np.atleast_1d(np.asarray(v, object))]
+    return a[0] if len(set(a)) == 1 else ",".join(x or "-" for x in a)
 
 
 def _write_batch_table(rows, path: str) -> None:
@@ -512,6 +527,7 @@ def _write_batch_table(rows, path: str) -> None:
                         len(r["channels"]) == a.size) else f"{name}_{j}"
                     d[key if kind == "params" else f"stderr_{key}"] = f"{x:.10g}"
         d["at_bound"] = ";".join(r["at_bound"])
+        d["stderr_note"] = ";".join(f"{k}: {_note_text(v)}" for k, v in r["stderr_note"].items())
         flat.append(d)
     fields = list(dict.fromkeys(k for d in flat for k in d))
     with open(path, "w", newline="") as fh:
@@ -567,6 +583,9 @@ def cmd_fit_batch(args) -> int:
         for r in rows:
             vals = "  ".join(_fmt(r["params"][k]) for k in names)
             flag = "" if not r["at_bound"] else f"  (at bound: {', '.join(r['at_bound'])})"
+            unid = [k for k, v in r["stderr_note"].items() if "not identifiable" in _note_text(v)]
+            if unid:
+                flag += f"  (stderr undefined, not identifiable: {', '.join(unid)})"
             print(f"  {r['file'][-28:]:<28} {'yes' if r['converged'] else 'NO':>4} "
                   f"{r['steps']:>5} {r['residual_rms']:10.4g}  {vals}{flag}")
         for msg in bad:

@@ -27,6 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from brdf_fit.fitting.problem import stderr_codes
 from brdf_fit.fitting.single import covariance_normal, solve
 
 __all__ = ["LMState", "directions", "tangents", "normal", "quad", "lm_init", "lm_chunk",
@@ -349,11 +350,13 @@ def finalise_one(problem, u, prep, m_eff, fixed, sandwich):
         meat = normal(T * r, r, Q)[0] if sandwich else None
         cov = covariance_normal(A, meat, jnp.sum(r * r), m_eff.astype(u.dtype))
         se = jnp.sqrt(jnp.maximum(jnp.diagonal(cov), 0.0))
+        code = stderr_codes(A, jnp.all(jnp.isfinite(A)) & jnp.all(jnp.isfinite(r)), jnp)
     else:
         se = jnp.zeros(0, u.dtype)
+        code = jnp.zeros(0, jnp.int32)
     loss = 0.5 * jnp.sum(r * r)
     rms = jnp.sqrt(jnp.mean(r * r))
-    return phys, se, loss, rms
+    return phys, se, loss, rms, code
 
 
 def finalise_state(problem, u, cost, A, meat, m_eff, n_res, fixed, sandwich):
@@ -361,8 +364,9 @@ def finalise_state(problem, u, cost, A, meat, m_eff, n_res, fixed, sandwich):
     evaluation): the transforms act entry by entry, ``x_i = t_i(u_i)``, so the physical
     Jacobian is ``J_u D^-1`` with ``D = diag(dx/du)`` and ``J_x^T J_x = D^-1 (J_u^T J_u) D^-1``
     (likewise the sandwich's meat), exactly; ``D`` is the forward-mode derivative of the
-    transforms. A parameter pushed so far onto its bound that ``D`` underflows to 0 gets the
-    standard error 0 (it is flagged ``at_bound``; its error means nothing there). The loss is
+    transforms. A parameter pushed so far onto its bound that ``D`` underflows to 0 has a zero
+    column (code 2 of :func:`~brdf_fit.fitting.problem.stderr_codes`; fit_batch reports it at
+    bound, standard error NaN). The loss is
     the carried one and ``rms = sqrt(2 loss / n_res)``, ``n_res = M C``."""
     prob = problem.with_fixed(fixed)
     phys = prob.unflatten(u)
@@ -375,6 +379,8 @@ def finalise_state(problem, u, cost, A, meat, m_eff, n_res, fixed, sandwich):
         S = inv[:, None] * inv[None, :]
         cov = covariance_normal(A * S, meat * S if sandwich else None, 2.0 * cost, m_eff)
         se = jnp.sqrt(jnp.maximum(jnp.diagonal(cov), 0.0))
+        code = stderr_codes(A * S, jnp.all(jnp.isfinite(A * S)) & jnp.isfinite(cost), jnp)
     else:
         se = jnp.zeros(0, u.dtype)
-    return phys, se, cost, jnp.sqrt(2.0 * cost / n_res)
+        code = jnp.zeros(0, jnp.int32)
+    return phys, se, cost, jnp.sqrt(2.0 * cost / n_res), code

@@ -121,8 +121,9 @@ from brdf_fit.fitting.problem import (
     at_bound,
     model_source,
     resolve_free,
+    stderr_notes,
 )
-from brdf_fit.fitting.single import SOLVERS
+from brdf_fit.fitting.single import SOLVERS, json_floats
 
 __all__ = ["BatchFitResult", "fit_batch", "BATCH_SOLVERS", "CHUNK_SCHEDULE", "GROUP",
            "MAX_BLOCK"]
@@ -151,6 +152,10 @@ class BatchFitResult:
     #: per free parameter, (B, ...) bool: the fitted value sits at an end of its interval
     #: (:func:`brdf_fit.fitting.problem.at_bound`; its standard error means nothing there)
     at_bound: dict = dataclasses.field(default_factory=dict)
+    #: per free parameter with some undefined (NaN) standard error, (B, ...) of reasons ("" where
+    #: defined): "at bound", "not identifiable", "non-finite normal equations" (as
+    #: :attr:`brdf_fit.fitting.single.FitResult.stderr_note`)
+    stderr_note: dict = dataclasses.field(default_factory=dict)
     #: where the parameters came from (:class:`~brdf_fit.fitting.problem.ModelSource`)
     source: Any = dataclasses.field(default=None, repr=False)
 
@@ -172,7 +177,8 @@ class BatchFitResult:
         return {
             "model": self.model_name,
             "params": {k: np.asarray(v).tolist() for k, v in self.params.items()},
-            "stderr": {k: np.asarray(v).tolist() for k, v in self.stderr.items()},
+            "stderr": {k: json_floats(v) for k, v in self.stderr.items()},
+            "stderr_note": {k: np.asarray(v).tolist() for k, v in self.stderr_note.items()},
             "converged": self.converged.tolist(),
             "steps": self.steps.tolist(),
             "loss": self.loss.tolist(),
@@ -353,20 +359,29 @@ def fit_batch(
     if solver == "batch-lm":  # from the carried normal equations, no model evaluation
         out = run.finalise_state(state.u, state.cost, state.A, state.meat, m_eff,
                                  np.full(B, M * C, dtype), fixed)
-        phys, se, loss, rms = jax.tree.map(np.asarray, out)
+        phys, se, loss, rms, codes = jax.tree.map(np.asarray, out)
     else:
-        phys, se, loss, rms = blocked(run, run.finalise, every, block,
-                                      whole(state.u, m_eff), data)
-    stderr = layout.split(se)
+        phys, se, loss, rms, codes = blocked(run, run.finalise, every, block,
+                                             whole(state.u, m_eff), data)
     params = {name: (np.asarray(phys[name]) if name in phys else fixed[name])
               for name in source.names}
     params = {name: np.broadcast_to(v, (B, *np.shape(v)[1:])) for name, v in params.items()}
+    bounds_hit = {n: at_bound(tr, params[n]) for n, tr in zip(free, layout.transforms,
+                                                               strict=True)}
+    if p:  # undefined standard errors: NaN, with the reason (stderr_codes; at bound first)
+        codes = np.asarray(codes, int)
+        codes = np.where((codes != 3) & layout.join(bounds_hit, xp=np), 1, codes)
+        se = np.where(codes == 0, se, np.nan)
+    stderr = layout.split(se)
+    notes = {k: v for k, v in layout.split(stderr_notes(np.asarray(codes))).items()
+             if (v != "").any()}
+    bad = np.asarray(codes).reshape(B, -1) == 3
     record(finalise=True, lane_steps=0, seconds=round(time.perf_counter() - ts, 4))
     return BatchFitResult(
         model_name=source.name,
         params=params,
         stderr=stderr,
-        converged=state.ok.astype(bool),
+        converged=state.ok.astype(bool) & ~bad.any(axis=1),
         steps=state.steps.astype(int),
         loss=loss,
         residual_rms=rms,
@@ -377,7 +392,7 @@ def fit_batch(
         seconds=time.perf_counter() - t0,
         rounds=rounds,
         n_devices=run.ndev,
-        at_bound={n: at_bound(tr, params[n]) for n, tr in zip(free, layout.transforms,
-                                                               strict=True)},
+        at_bound=bounds_hit,
+        stderr_note=notes,
         source=source,
     )

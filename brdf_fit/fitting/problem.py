@@ -69,6 +69,7 @@ __all__ = [
     "FitProblem", "ParamLayout", "ParamSpec", "ModelSource", "RegistrySource", "TemplateSource",
     "model_source", "resolve_free", "Transform", "FitError", "at_bound", "metric_parts",
     "METRICS", "METRIC_H", "RELATIVE_FLOOR", "DATA_SCALE_FLOOR", "EDGE", "AT_BOUND_REL",
+    "RANK_RCOND", "DEAD_COLUMN_REL", "NULL_SHARE", "STDERR_NOTES", "stderr_codes", "stderr_notes",
 ]
 
 METRICS = ("log", "cuberoot", "relative", "absolute")
@@ -83,13 +84,16 @@ EDGE = 1e-9
 #: Smallest ``g'(f) sigma`` a sigma-weighted residual is divided by (a sample with sigma = 0 and
 #: positive weight would otherwise divide by zero); far below any measured standard deviation.
 SIGMA_FLOOR = 1e-300
-#: A fitted value this close to an interval end (relative to the interval's width, or to
-#: max(1, |bound|) for a half-bounded parameter) is reported as at its bound: there the
+#: A fitted value this close to an interval end (relative to max(1, |bound|), or to the
+#: interval's width where that is smaller) is reported as at its bound: there the
 #: unconstrained solver has (almost) no gradient left, so the value is a limit, not an optimum
 #: of the model, and its standard error describes nothing (e.g. an f0 channel pushed to 1).
 #: 1e-4: a logistic parameter creeps towards its end ever more slowly (its slope t (1 - t)
 #: vanishes); optimistix's LM stopped an f0 that wanted to exceed 1 at 1 - 1.4e-6 after 256
-#: steps, batch-lm at 1 - 1e-16 (measured).
+#: steps, batch-lm at 1 - 1e-16 (measured). Near an end the logistic's slope is about the
+#: distance to it, whatever the width, so a wide interval does not widen the tolerance: relative
+#: to the width alone, a Phong exponent of 6.3 in [0, 1e6] (the demo's fit) counted as at its
+#: bound (tolerance 100) and, since issue 16, lost its standard error.
 AT_BOUND_REL = 1e-4
 
 
@@ -153,9 +157,70 @@ def at_bound(param, value) -> np.ndarray:
     scale = (hi - lo) if (lo is not None and hi is not None) else None
     for b in (lo, hi):
         if b is not None:
-            tol = AT_BOUND_REL * (scale if scale is not None else max(1.0, abs(b)))
+            near = max(1.0, abs(b))
+            tol = AT_BOUND_REL * (min(scale, near) if scale is not None else near)
             out |= np.abs(x - b) <= tol
     return out
+
+
+# ----------------------------------------------------------------------------- identifiability
+
+
+#: Relative threshold of the numerical rank of the normal equations ``A = J^T J`` in the free
+#: physical parameters, taken on the correlation-scaled ``R = D^-1/2 A D^-1/2`` (``D = diag(A)``,
+#: so the test does not depend on the parameters' units; R's eigenvalues sum to p): an
+#: eigenvalue below ``RANK_RCOND * max`` (a singular value of the column-scaled ``J`` below 1e-5
+#: of the largest) is a combination of parameters the data determine 1e5 times less well than
+#: the best-determined one, i.e. not at all. The rounding of ``J^T J`` in float64 is ~1e-13
+#: relative (m ~ 1e4 samples), far below; two parameters that enter only as a product give
+#: ~1e-16 (measured), well-posed fits of the test suite >= 1e-5 (measured). For a lower
+#: precision the threshold is raised to 1e3 eps of that dtype (1.2e-4 in float32).
+RANK_RCOND = 1e-10
+#: A parameter whose Jacobian column has a norm below this fraction of the largest column's is
+#: not identifiable outright: ``numpy.linalg.pinv`` (rcond 1e-15 on ``A``, i.e. ~3e-8 on the
+#: columns of ``J``) drops such a direction and reports a confidently small, meaningless error
+#: (gold's red channel at F ~ 1 in the demo: 1e-10).
+DEAD_COLUMN_REL = 3e-8
+#: A parameter takes part in a rank-deficient direction ``v`` (unit eigenvector of R) when
+#: ``|v_i| > NULL_SHARE``: its variance along ``v``, ``v_i^2 / lambda``, is unbounded as lambda
+#: -> 0; 0.01 (1e-4 of the direction's squared length) ignores the rounding-level components
+#: an eigenvector carries on the well-determined parameters.
+NULL_SHARE = 0.01
+#: Why a standard error is undefined (NaN), by code (:func:`stderr_codes`; 0: defined).
+STDERR_NOTES = {1: "at bound", 2: "not identifiable", 3: "non-finite normal equations"}
+
+
+def stderr_codes(A, finite=None, xp=np):
+    """Per flat free parameter (``A``: ``J^T J`` (p, p) in the physical parameters): 0 when its
+    standard error is defined, 2 when it is not identifiable (its Jacobian column vanishes,
+    :data:`DEAD_COLUMN_REL`, or it takes part in a direction of numerical rank deficiency,
+    :data:`RANK_RCOND`, :data:`NULL_SHARE`), 3 for every parameter when the normal equations
+    are not finite (``finite``: that test, default computed from ``A``). NumPy or JAX (jit,
+    vmap: ``xp=jnp``); at-bound flags (code 1) are added by the caller (:func:`at_bound`)."""
+    p = A.shape[-1]
+    if finite is None:
+        finite = xp.all(xp.isfinite(A))
+    A = xp.where(finite, A, xp.eye(p, dtype=A.dtype))  # no eigensolver on inf/NaN
+    d = xp.sqrt(xp.maximum(xp.diagonal(A), 0.0))
+    dead = d <= DEAD_COLUMN_REL * xp.max(d)
+    ds = xp.where(dead, 1.0, d)
+    live = ~dead
+    R = xp.where(live[:, None] & live[None, :], A / (ds[:, None] * ds[None, :]), 0.0)
+    w, V = xp.linalg.eigh(R)
+    rcond = max(RANK_RCOND, 1e3 * float(np.finfo(np.dtype(A.dtype)).eps))
+    small = w <= rcond * xp.max(w)
+    implicated = xp.any(small[None, :] & (xp.abs(V) > NULL_SHARE), axis=-1)
+    code = xp.where(dead | implicated, 2, 0)
+    return xp.where(finite, code, 3)
+
+
+def stderr_notes(codes, shape=None) -> np.ndarray:
+    """Codes (:func:`stderr_codes`, at-bound 1) -> an array of reasons ("" where defined)."""
+    c = np.asarray(codes)
+    out = np.full(c.shape, "", dtype=object)
+    for k, why in STDERR_NOTES.items():
+        out[c == k] = why
+    return out if shape is None else out.reshape(shape)
 
 
 # ----------------------------------------------------------------------------- metrics

@@ -21,7 +21,12 @@ constant (1% multiplicative noise gives a log-metric residual of ~1% at the peak
 tails), and a pooled ``s^2`` made 3-sigma intervals cover the truth in only 57-82% of 200 trials
 (measured for ggx, beckmann, modified-phong); there the heteroscedasticity-consistent sandwich
 ``cov = m/(m - p) (J^T J)^-1 J^T diag(r^2) J (J^T J)^-1`` is used (HC1: H. White, Econometrica
-48(4), 1980; J. G. MacKinnon and H. White, J. Econometrics 29, 1985).
+48(4), 1980; J. G. MacKinnon and H. White, J. Econometrics 29, 1985). A standard error is
+undefined (NaN, the reason in ``FitResult.stderr_note``) for a parameter at an end of its
+interval, for one the data do not determine (a vanishing Jacobian column or a rank-deficient
+direction of ``J^T J``: :func:`brdf_fit.fitting.problem.stderr_codes`; ``pinv`` would drop that
+direction and report a confident, meaningless number), and for every parameter when the
+residuals or ``J`` are not finite (the fit then ends not converged).
 
 The optimisation itself (:func:`solve`) is pure JAX: it runs under ``jit`` and ``vmap`` and is
 differentiable with respect to the data through optimistix's implicit adjoint.
@@ -53,6 +58,8 @@ from brdf_fit.fitting.problem import (
     at_bound,
     model_source,
     resolve_free,
+    stderr_codes,
+    stderr_notes,
 )
 from brdf_fit.verify.checks import run_checks
 
@@ -128,6 +135,11 @@ class FitResult:
     #: free parameters whose fitted value (any channel) sits at an end of its interval
     #: (:func:`at_bound`): a limit, not an optimum; its standard error means nothing
     at_bound: tuple[str, ...] = ()
+    #: free parameters with an undefined (NaN) standard error, the reason per entry (shape of
+    #: the parameter; "" where defined): "at bound", "not identifiable" (a vanishing Jacobian
+    #: column or a rank-deficient direction of ``J^T J``,
+    #: :func:`brdf_fit.fitting.problem.stderr_codes`), "non-finite normal equations"
+    stderr_note: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
 
     def to_dict(self) -> dict:
         def tolist(v):
@@ -137,7 +149,7 @@ class FitResult:
         return {
             "model": self.model_name,
             "params": {k: tolist(v) for k, v in self.params.items()},
-            "stderr": {k: tolist(v) for k, v in self.stderr.items()},
+            "stderr": {k: json_floats(v) for k, v in self.stderr.items()},
             "fixed": {k: tolist(v) for k, v in self.fixed.items()},
             "converged": bool(self.converged),
             "steps": int(self.steps),
@@ -151,7 +163,19 @@ class FitResult:
             "at_bound": list(self.at_bound),
             "message": self.message,
             "checks": [c.to_dict() for c in self.checks],
+            # only where some standard error is undefined (null in "stderr"): the reasons
+            **({"stderr_note": {k: np.asarray(v).tolist() for k, v in self.stderr_note.items()}}
+               if self.stderr_note else {}),
         }
+
+
+def json_floats(v):
+    """A float array as JSON-ready lists (a scalar as a float), NaN and inf as None (strict
+    JSON has neither; the reason is in ``stderr_note``)."""
+    a = np.asarray(v, float)
+    if not a.ndim:
+        return float(a) if np.isfinite(a) else None
+    return [json_floats(x) for x in a]
 
 
 def covariance(J, r, m_eff, sandwich: bool):
@@ -159,9 +183,10 @@ def covariance(J, r, m_eff, sandwich: bool):
     the optimum, ``m_eff`` samples that carry weight (see the module docstring): ``sandwich=False``
     ``s^2 (J^T J)^+`` with ``s^2 = RSS/(m_eff - p)``; ``sandwich=True`` the HC1 estimator
     ``m_eff/(m_eff - p) (J^T J)^+ (J^T diag(r^2) J) (J^T J)^+``. NumPy or JAX arrays (jit/vmap)."""
-    Jr = J * r[:, None]
-    return covariance_normal(J.T @ J, None if not sandwich else Jr.T @ Jr,
-                             (r * r).sum(), m_eff)
+    with np.errstate(invalid="ignore", over="ignore"):  # inf/NaN input: NaN out, as a flag
+        Jr = J * r[:, None]
+        return covariance_normal(J.T @ J, None if not sandwich else Jr.T @ Jr,
+                                 (r * r).sum(), m_eff)
 
 
 def covariance_normal(A, meat, rss, m_eff):
@@ -171,10 +196,18 @@ def covariance_normal(A, meat, rss, m_eff):
     xp = jnp if any(isinstance(x, jax.Array) for x in (A, meat, rss)) else np
     p = A.shape[-1]
     dof = max(int(m_eff) - p, 1) if isinstance(m_eff, int) else xp.maximum(m_eff - p, 1)
+    # non-finite input: NaN, never an SVD of inf/NaN (numpy's pinv spun for 14+ minutes on one)
+    finite = xp.all(xp.isfinite(A)) & xp.all(xp.isfinite(rss))
+    if meat is not None:
+        finite = finite & xp.all(xp.isfinite(meat))
+    if xp is np and not finite:
+        return np.full(A.shape, np.nan)
+    if xp is jnp:  # traced: the SVD runs on a harmless stand-in, the result is masked
+        A = jnp.where(finite, A, jnp.eye(p, dtype=A.dtype))
+        meat = None if meat is None else jnp.where(finite, meat, 0.0)
     bread = xp.linalg.pinv(A)
-    if meat is None:
-        return rss / dof * bread
-    return (m_eff / dof) * (bread @ meat @ bread)
+    cov = rss / dof * bread if meat is None else (m_eff / dof) * (bread @ meat @ bread)
+    return cov if xp is np else jnp.where(finite, cov, jnp.nan)
 
 
 def _arrays(data: GonioData, max_zenith_deg, dtype):
@@ -294,17 +327,27 @@ def fit(
     r = np.asarray(jax.jit(problem.residuals_phys)(flat_phys, arrays))
     m_eff = int(np.sum(np.asarray(arrays[3]).reshape(-1) > 0))
     p = int(flat_phys.shape[0])
-    stderr = {}
+    stderr, codes = {}, np.zeros(p, int)
+    params = {k: np.asarray(v) for k, v in phys.items()}
     if p:
         J = np.asarray(jax.jit(jax.jacfwd(problem.residuals_phys))(flat_phys, arrays))
+        finite = bool(np.all(np.isfinite(J)) and np.all(np.isfinite(r)))
+        # J^T J of finite J may still overflow: stderr_codes tests the product itself
+        with np.errstate(over="ignore"):
+            codes = (stderr_codes(J.T @ J) if finite
+                     else stderr_codes(np.full((p, p), np.nan), False))
         try:
-            cov = covariance(J, r, m_eff, sandwich=arrays[4] is None)
-            se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+            cov = covariance(J, r, m_eff, sandwich=arrays[4] is None) if finite else None
+            se = np.sqrt(np.maximum(np.diag(cov), 0.0)) if finite else np.full(p, np.nan)
         except np.linalg.LinAlgError:
             se = np.full(p, np.nan)
+        bound = layout.join({n: at_bound(tr, params[n])
+                             for n, tr in zip(free, layout.transforms, strict=True)}, xp=np)
+        codes = np.where((codes != 3) & bound, 1, codes)  # the more specific reason
+        se = np.where(codes == 0, se, np.nan)
         stderr = layout.split(se)
-    converged = bool(ok)
-    params = {k: np.asarray(v) for k, v in phys.items()}
+    converged = bool(ok) and not (codes == 3).any()
+    notes = {k: v for k, v in layout.split(stderr_notes(codes)).items() if (v != "").any()}
     fitted = source.build({k: jnp.asarray(v) for k, v in params.items()})
     result = FitResult(
         model_name=source.name,
@@ -321,7 +364,10 @@ def fit(
         seconds=0.0,
         fixed={k: np.asarray(v) for k, v in fixed.items()},
         starts=max(1, multistart),
-        message="" if converged else f"did not converge in {max_steps} steps",
+        message="" if converged else (
+            "non-finite residuals or Jacobian at the optimum: standard errors undefined"
+            if (codes == 3).any() else f"did not converge in {max_steps} steps"),
+        stderr_note=notes,
         at_bound=tuple(n for n, tr in zip(free, layout.transforms, strict=True)
                        if at_bound(tr, params[n]).any()),
     )

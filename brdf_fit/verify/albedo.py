@@ -9,9 +9,12 @@ Construction and convergence tables: docs/quadrature.md.
 
 from __future__ import annotations
 
+import dataclasses
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from brdf_fit.core.microfacet import Beckmann, BlinnPhongNDF
 from brdf_fit.core.quadrature import (
@@ -23,6 +26,7 @@ from brdf_fit.core.quadrature import (
     halfvector_rule,
     mirror_lobe_rule,
 )
+from brdf_fit.core.validate import ParameterError
 from brdf_fit.models import Lambert, MicrofacetBRDF
 from brdf_fit.models._base import expand_channels
 
@@ -112,6 +116,39 @@ def _rule_sum(lobe, directions, weights, wo):
     return jnp.sum(w * vals, axis=-1)
 
 
+def _check_parameter_shapes(model, path: str = "") -> None:
+    """Refuse a batch axis on a model parameter: the rules are built for one lobe (one set of
+    widths), and a geometric parameter of shape ``(N, 1)`` broadcast against ``wo`` of shape
+    ``(N, N, 3)`` gave ``(N, N, 1)`` values up to 18 for an albedo <= 1 (issue 16). A
+    floating-point field may be a scalar, or a 1-D vector where its field declares channels
+    (:func:`brdf_fit.core.params.bounded` with ``channels=True``); anything else raises
+    :class:`~brdf_fit.core.validate.ParameterError` naming the parameter."""
+    for f in dataclasses.fields(model):
+        if f.metadata.get("static", False):
+            continue
+        v = getattr(model, f.name, None)
+        name = f"{path}.{f.name}" if path else f.name
+        if isinstance(v, eqx.Module):
+            _check_parameter_shapes(v, name)
+            continue
+        if isinstance(v, list | tuple):
+            for i, x in enumerate(v):
+                if isinstance(x, eqx.Module):
+                    _check_parameter_shapes(x, f"{name}.{i}")
+            continue
+        if not isinstance(v, jax.Array | np.ndarray) or not jnp.issubdtype(v.dtype, jnp.floating):
+            continue
+        channels = bool(f.metadata.get("channels", False))
+        if v.ndim == 0 or (channels and v.ndim == 1):
+            continue
+        allowed = "a scalar or a 1-D channel vector" if channels else "a scalar"
+        raise ParameterError(
+            f"directional_albedo: {type(model).__name__}.{f.name} ({name}) has shape "
+            f"{tuple(v.shape)}, but must be {allowed}: the quadrature rule is built for one "
+            f"lobe. For a batch of models use jax.vmap over models, e.g. "
+            f"jax.vmap(lambda a: directional_albedo(make_model(a), wo))(values)")
+
+
 def _albedo(model, wo, opts) -> tuple[jax.Array, int]:
     if model.is_compound():  # Mixture, Scaled: sum_j scale_j E_j, lobe by lobe
         ch = model.channels()
@@ -179,6 +216,7 @@ def directional_albedo(
     wo = jnp.asarray(wo)
     if wo.shape[-1:] != (3,):
         raise ValueError(f"wo must have shape (..., 3), got {wo.shape}")
+    _check_parameter_shapes(model)
     dtype = wo.dtype if jnp.issubdtype(wo.dtype, jnp.floating) else None
     opts = {"dtype": dtype, "rule": {"n_theta": n_theta, "n_phi": n_phi, "generic": generic}}
     e, n = _albedo(model, wo, opts)
