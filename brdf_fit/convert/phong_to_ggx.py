@@ -5,7 +5,7 @@
 fits registry ``ggx`` (``alpha`` and a mono ``f0`` free) with :func:`brdf_fit.fit.fit`, and
 reports the fitted width next to the closed-form width of :mod:`brdf_fit.convert_phong`
 (Walter et al. 2007's peak match ``alpha = sqrt(2/(n+2))``; a Phong exponent goes through
-:func:`~brdf_fit.convert_phong.phong_to_blinn_phong_exponent` first, ``n_blinn = 4 n_phong``).
+:func:`~brdf_fit.convert.phong.phong_to_blinn_phong_exponent` first, ``n_blinn = 4 n_phong``).
 
 Geometry (:func:`geometry`, stated in every result): the union of
 
@@ -310,7 +310,7 @@ def phong_to_ggx(
         source=source, target="ggx", metric=metric, geometry=_geometry_text(max_zenith_deg),
         max_zenith_deg=float(max_zenith_deg),
         closed_form=f"alpha = sqrt(2/(n_b + 2)) (Walter et al. 2007, peak match) via "
-                    f"convert_phong.{via}",
+                    f"brdf_fit.convert.phong.{via}",
         rows=rows,
     )
 
