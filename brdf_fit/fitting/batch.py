@@ -119,6 +119,7 @@ from brdf_fit.fitting.problem import (
     FitProblem,
     ParamLayout,
     at_bound,
+    check_choice,
     model_source,
     resolve_free,
     stderr_notes,
@@ -241,12 +242,9 @@ def fit_batch(
 
     t0 = time.perf_counter()
     source = model_source(model, bounds)
-    if metric not in METRICS:
-        raise FitError(f"unknown metric {metric!r}; valid metrics: {', '.join(METRICS)}")
-    if solver not in BATCH_SOLVERS:
-        raise FitError(f"unknown solver {solver!r}; valid solvers: {', '.join(BATCH_SOLVERS)}")
-    if guess not in _guess.GUESSES:
-        raise FitError(f"unknown guess {guess!r}; valid: {', '.join(_guess.GUESSES)}")
+    check_choice("metric", metric, METRICS)
+    check_choice("solver", solver, BATCH_SOLVERS)
+    check_choice("guess", guess, _guess.GUESSES, label="valid")
     dtype = jnp.zeros(()).dtype if dtype is None else jnp.dtype(dtype)
     wi = np.asarray(wi, float)
     wo = np.asarray(wo, float)

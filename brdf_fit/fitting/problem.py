@@ -67,7 +67,8 @@ from brdf_fit.core.validate import ParameterError
 
 __all__ = [
     "FitProblem", "ParamLayout", "ParamSpec", "ModelSource", "RegistrySource", "TemplateSource",
-    "model_source", "resolve_free", "Transform", "FitError", "at_bound", "metric_parts",
+    "model_source", "resolve_free", "check_choice", "Transform", "FitError", "at_bound",
+    "metric_parts",
     "METRICS", "METRIC_H", "RELATIVE_FLOOR", "DATA_SCALE_FLOOR", "EDGE", "AT_BOUND_REL",
     "RANK_RCOND", "DEAD_COLUMN_REL", "NULL_SHARE", "STDERR_NOTES", "stderr_codes", "stderr_notes",
 ]
@@ -580,6 +581,15 @@ class TemplateSource(ModelSource):
                        "Name parameters by attribute path in free=, fix=, init= and bounds=.")
 
 
+def check_choice(kind: str, value, valid, label: str | None = None) -> None:
+    """Raise :class:`FitError` ``unknown KIND 'VALUE'; LABEL: a, b, c`` unless ``value`` is one
+    of ``valid`` (``label`` defaults to ``valid KINDs``): the one form fit, fit_batch and
+    FitProblem.of refuse an option in, before any work."""
+    if value not in valid:
+        raise FitError(f"unknown {kind} {value!r}; {label or f'valid {kind}s'}: "
+                       f"{', '.join(valid)}")
+
+
 def model_source(model, bounds: Mapping[str, Any] | None = None) -> ModelSource:
     """The :class:`ModelSource` of a registry name, a registry
     :class:`~brdf_fit.core.params.Entry`, a built model (:class:`TemplateSource`) or a source
@@ -756,8 +766,7 @@ class FitProblem:
                     return (n_channels,)
                 return np.shape(p.default)
             shapes = tuple(shape(source.param(n)) for n in free)
-        if metric not in METRICS:
-            raise FitError(f"unknown metric {metric!r}; valid metrics: {', '.join(METRICS)}")
+        check_choice("metric", metric, METRICS)
         return cls(source, ParamLayout.of(source, free, shapes), fixed, metric, cos_weight)
 
     # the layout's parts, by their old names

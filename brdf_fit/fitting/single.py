@@ -56,6 +56,7 @@ from brdf_fit.fitting.problem import (
     ParamLayout,
     Transform,
     at_bound,
+    check_choice,
     model_source,
     resolve_free,
     stderr_codes,
@@ -269,13 +270,9 @@ def fit(
 
     t0 = time.perf_counter()
     source = model_source(model, bounds)
-    if metric not in METRICS:
-        raise FitError(f"unknown metric {metric!r}; valid metrics: {', '.join(METRICS)}")
-    if solver not in SOLVERS:
-        raise FitError(f"unknown solver {solver!r}; valid solvers: {', '.join(SOLVERS)}")
-
-    if guess not in _guess.GUESSES:
-        raise FitError(f"unknown guess {guess!r}; valid: {', '.join(_guess.GUESSES)}")
+    check_choice("metric", metric, METRICS)
+    check_choice("solver", solver, SOLVERS)
+    check_choice("guess", guess, _guess.GUESSES, label="valid")
     fix = dict(fix or {})
     init = dict(init or {})
     free = resolve_free(source, fix, init, free)  # unknown names raise with the valid list
