@@ -827,7 +827,6 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     errors: list[type[BaseException]] = [CLIError]
     for module, names in (("brdf_fit.core.validate", ("ParameterError",)),
                           ("brdf_fit.fitting.problem", ("FitError",)),
-                          ("brdf_fit.fitting.single", ("FitError",)),
                           ("brdf_fit.data", ("DataError",)),
                           ("data_synth.recipes", ("RecipeError",)),
                           ("data_synth.plans", ("PlanError",)),
