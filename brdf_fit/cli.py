@@ -11,6 +11,7 @@
     brdf-fit fit-batch DATA... --model NAME [--fix ...] [--init ...] [--metric ...]
                  [--guess grid|none] [--skip-bad] [--out FILE.csv|.json] [--json] [--quiet]
     brdf-fit demo [--out DIR] [--json]
+    brdf-fit lut dfg -o FILE [--size N] [--masking M] [--layout NAME] [--channels A,B] [--json]
     brdf-fit convert phong-to-ggx [--source modified-phong|blinn-phong|...] [--exponents N ...]
                  [--metric log] [--max-zenith-deg 80] [--json]
 
@@ -692,6 +693,85 @@ def cmd_convert(args) -> int:
     return 0 if all(r["converged"] for r in doc["rows"]) else 1
 
 
+def _lut_progress(enabled: bool, label: str):
+    bar = _Progress(0, enabled)
+
+    def progress(done: int, total: int) -> None:
+        bar.show(done, done, total, label)
+
+    return bar, progress
+
+
+def cmd_lut(args) -> int:
+    """Generate a lookup table (:mod:`brdf_fit.tables`) and write it; every option and the
+    output path are checked before any work."""
+    import time
+
+    from brdf_fit.tables.layouts import CHANNEL_SETS, LAYOUTS
+
+    if args.table != "dfg":
+        raise CLIError(f"unknown table {args.table!r}; valid tables: dfg")
+    if args.layout not in LAYOUTS:
+        raise CLIError(f"unknown layout {args.layout!r}; valid layouts: {', '.join(LAYOUTS)}")
+    masks = ("height-correlated", "separable", "karis")
+    if args.masking is not None and args.masking not in masks:
+        raise CLIError(f"unknown masking {args.masking!r}; valid: {', '.join(masks)}")
+    if args.size < 2 or args.size > 4096:
+        raise CLIError(f"--size must be in [2, 4096], got {args.size}")
+    channels = None
+    if args.channels is not None:
+        channels = tuple(c.strip() for c in args.channels.split(","))
+        if channels not in CHANNEL_SETS:
+            raise CLIError(f"--channels {args.channels!r}: choose one of "
+                           f"{', '.join(','.join(c) for c in CHANNEL_SETS)}")
+    from brdf_fit.tables.export import check_output
+
+    try:
+        check_output(args.output, half=args.half)
+    except (ValueError, ImportError) as e:
+        raise CLIError(str(e)) from None
+    if args.plot is not None:
+        check_output_file(args.plot, (".png", ".pdf", ".svg"), "--plot")
+    import dataclasses
+
+    from brdf_fit.tables.dfg import dfg_table
+    from brdf_fit.tables.export import write_table
+    from brdf_fit.tables.layouts import resolve_layout
+
+    layout = resolve_layout(args.layout)
+    if channels is not None:
+        layout = dataclasses.replace(layout, channels=channels)
+    bar, progress = _lut_progress(not args.quiet, f"dfg {args.size}x{args.size} texels")
+    t0 = time.perf_counter()
+    table = dfg_table(args.size, args.masking, layout=layout, progress=progress)
+    bar.close()
+    paths = write_table(table, args.output, half=args.half)
+    seconds = time.perf_counter() - t0
+    if args.plot is not None:
+        from brdf_fit.plot import table_maps
+
+        table_maps(table, title=f"DFG {args.size}x{args.size}, {table.meta['masking']}").savefig(
+            args.plot, dpi=110)
+        paths.append(args.plot)
+    meta = table.meta
+    doc = {"table": "dfg", "size": args.size, "layout": meta["layout"],
+           "masking": meta["masking"], "channels": list(table.channels),
+           "quadrature": meta["quadrature"],
+           "error_estimate": {k: v for k, v in meta.get("error_estimate", {}).items()
+                              if k in ("max_abs", "method")},
+           "seconds": round(seconds, 3), "files": [str(p) for p in paths]}
+    if args.json:
+        print(json.dumps(doc, indent=2))
+    else:
+        err = doc["error_estimate"].get("max_abs")
+        print(f"DFG {args.size}x{args.size} ({meta['masking']} masking, layout {args.layout}, "
+              f"channels {','.join(table.channels)}): error estimate "
+              f"{'-' if err is None else f'{err:.2g}'} max abs; {seconds:.2f} s")
+        for p in paths:
+            print(f"wrote {p}")
+    return 0
+
+
 def _fit_options(p, what: str) -> None:
     """The options ``fit`` and ``fit-batch`` share (``what``: what the zenith cut does to a
     sample, "drop" or "mask")."""
@@ -817,6 +897,28 @@ def build_parser() -> argparse.ArgumentParser:
                    help="machine-readable; its rows are a small fitted exponent -> alpha table "
                         "(brdf_fit.convert.phong_to_ggx.alpha_from_table)")
     v.set_defaults(func=cmd_convert)
+
+    t = sub.add_parser("lut", help="generate a lookup table (dfg: split-sum A, B of GGX) as "
+                                   ".npz, .exr, .png (16 bit) or .h")
+    t.add_argument("table", help="dfg")
+    t.add_argument("-o", "--output", required=True,
+                   help="output file; the format from the extension: .npz (+ .json sidecar), "
+                        ".exr, .png, .h")
+    t.add_argument("--size", type=_positive_int, default=128, metavar="N",
+                   help="N x N texels (default 128)")
+    t.add_argument("--masking", default=None,
+                   help="height-correlated (default), separable or karis (k = alpha/2, UE4)")
+    t.add_argument("--layout", default="default",
+                   help="default, khronos, filament, ue4, cycles (texel grid, roughness axis, "
+                        "image row order and channels of that engine's table)")
+    t.add_argument("--channels", default=None, metavar="A,B|B,E|E",
+                   help="what to store (default: the layout's); E = A + B")
+    t.add_argument("--half", action="store_true", help=".exr: half floats instead of float32")
+    t.add_argument("--plot", default=None, metavar="PNG", help="also draw the table and its "
+                                                              "error estimate")
+    t.add_argument("--json", action="store_true", help="print the table's metadata as JSON")
+    t.add_argument("--quiet", action="store_true", help="no progress bar")
+    t.set_defaults(func=cmd_lut)
     return p
 
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from brdf_fit.data import GonioData
 
-__all__ = ["in_plane_slices", "residuals", "in_plane_samples"]
+__all__ = ["in_plane_slices", "residuals", "in_plane_samples", "table_maps"]
 
 #: Tolerance on angles (degrees) when picking the in-plane samples out of a scattered dataset.
 ANGLE_TOL_DEG = 0.5
@@ -167,6 +167,45 @@ def residuals(data: GonioData, models: Sequence[tuple[str, object]], title: str 
     for ax in axes[n:]:
         ax.set_visible(False)
     axes[0].legend(fontsize=7, markerscale=3)
+    if title:
+        fig.suptitle(title)
+    return fig
+
+
+def table_maps(table, title: str | None = None):
+    """A 2-D lookup table (:class:`brdf_fit.core.table.Table`) as images, one per channel, axis 1
+    (e.g. ``mu``) to the right and axis 0 (e.g. roughness) upwards, and, when the table's
+    metadata has a per-texel ``error_estimate`` on a subgrid, that error map (log scale)."""
+    from matplotlib.colors import LogNorm
+
+    if len(table.axes) != 2:
+        raise ValueError(f"table_maps draws 2-D tables; this one has {len(table.axes)} axes")
+    values = np.asarray(table.values, dtype=np.float64)
+    err = table.meta.get("error_estimate", {})
+    has_err = "per_texel" in err
+    n = len(table.channels) + has_err
+    fig = _figure(3.6 * n, 3.3)
+    axes = fig.subplots(1, n, squeeze=False).ravel()
+    a0, a1 = table.axes
+    extent = (a1.lo, a1.hi, a0.lo, a0.hi)
+    for ax, (k, name) in zip(axes, enumerate(table.channels), strict=False):
+        im = ax.imshow(values[..., k], origin="lower", extent=extent, aspect="auto",
+                       cmap="viridis")
+        fig.colorbar(im, ax=ax, shrink=0.85)
+        ax.set_title(name, fontsize=9)
+        ax.set_xlabel(a1.name)
+        ax.set_ylabel(a0.name)
+    if has_err:
+        ax = axes[-1]
+        e = np.maximum(np.asarray(err["per_texel"], dtype=np.float64), 1e-17)
+        x = a1.nodes()[np.asarray(err["columns"])]
+        y = a0.nodes()[np.asarray(err["rows"])]
+        norm = LogNorm(vmin=max(e.min(), 1e-17), vmax=max(e.max(), 1e-16))
+        pc = ax.pcolormesh(x, y, e, norm=norm, shading="nearest", cmap="magma")
+        fig.colorbar(pc, ax=ax, shrink=0.85)
+        ax.set_title(f"error estimate (max {err.get('max_abs', e.max()):.2g})", fontsize=9)
+        ax.set_xlabel(a1.name)
+        ax.set_ylabel(a0.name)
     if title:
         fig.suptitle(title)
     return fig

@@ -66,6 +66,7 @@ __all__ = [
     "BlinnPhongNDF",
     "SmithSeparable",
     "SmithHeightCorrelated",
+    "SchlickSmithKaris",
     "VCavity",
     "reflect_about",
 ]
@@ -457,6 +458,24 @@ class SmithHeightCorrelated(AbstractMasking):
 
     def V(self, dist, ix, iy, iz, ox, oy, oz, hz, d):
         return 0.5 / (oz * dist.P(ix, iy, iz) + iz * dist.P(ox, oy, oz))
+
+
+class SchlickSmithKaris(AbstractMasking):
+    """Separable Schlick-Smith masking with Karis's remapping ``k = alpha/2``::
+
+        G1(w) = (n.w) / ((n.w)(1 - k) + k),   G2 = G1(wi) G1(wo)
+
+    (B. Karis, "Real Shading in Unreal Engine 4", SIGGRAPH 2013 course notes, the geometric term
+    used for image-based lighting; the G1 form is Schlick's 1994 rational approximation of the
+    Smith G1, "An inexpensive BRDF model for physically-based rendering", eq. 19). With
+    ``k = alpha/2`` it matches the GGX Smith G1 at normal incidence and as ``alpha -> 0``; it
+    is not an exact Smith term (the weak white furnace holds only approximately). Isotropic: ``k``
+    uses ``alpha_x``.
+    """
+
+    def V(self, dist, ix, iy, iz, ox, oy, oz, hz, d):
+        k = 0.5 * dist.widths()[0]
+        return 0.25 / ((iz * (1.0 - k) + k) * (oz * (1.0 - k) + k))
 
 
 class VCavity(AbstractMasking):

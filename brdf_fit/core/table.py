@@ -1,0 +1,152 @@
+"""Tabulated functions on regular grids, and their differentiable lookup inside JAX.
+
+A :class:`Table` holds values on the tensor product of regular :class:`Axis` grids (one value or
+several named channels per node) and a JSON-serialisable metadata dict. :meth:`Table.lookup`
+interpolates multilinearly; it is a pure ``jax.numpy`` function of the coordinates and of the
+values, so it works under ``jit``, ``vmap`` and ``grad`` (with respect to both), and models of
+layer 1 can use a table (e.g. a packaged albedo table) without depending on the code that
+computed it (``brdf_fit.tables``, layer 3).
+
+Grid conventions (stated once; every table names its own in ``Axis.centres``):
+
+* **texel centres** (``centres=True``): node ``i`` of ``n`` sits at
+  ``lo + (i + 0.5) (hi - lo) / n``, as a GPU texture of ``n`` texels over ``[lo, hi]`` samples it;
+  a lookup outside ``[x_0, x_{n-1}]`` returns the edge node's value (``CLAMP_TO_EDGE``).
+* **endpoints** (``centres=False``): node ``i`` sits at ``lo + i (hi - lo) / (n - 1)``; a lookup
+  outside ``[lo, hi]`` is clamped to the interval.
+
+Interpolation is linear in each axis (bilinear for two, trilinear for three), which is what a GPU
+sampler does with ``LINEAR`` filtering; its error for a smooth table is ``h^2/8 max|f''|`` per
+axis (``h`` the node spacing), reported by ``brdf_fit.tables`` for each table it builds.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping, Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+__all__ = ["Axis", "Table"]
+
+
+class Axis(eqx.Module):
+    """A regular grid on ``[lo, hi]`` with ``n`` nodes at texel centres or at the endpoints."""
+
+    name: str = eqx.field(static=True)
+    lo: float = eqx.field(static=True)
+    hi: float = eqx.field(static=True)
+    n: int = eqx.field(static=True)
+    centres: bool = eqx.field(static=True, default=True)
+
+    def __check_init__(self):
+        if not isinstance(self.n, int) or self.n < 1 or (not self.centres and self.n < 2):
+            need = 1 if self.centres else 2
+            raise ValueError(f"axis {self.name!r}: need an integer n >= {need}, got {self.n!r}")
+        if not (np.isfinite(self.lo) and np.isfinite(self.hi) and self.hi > self.lo):
+            raise ValueError(
+                f"axis {self.name!r}: need lo < hi (finite), got [{self.lo}, {self.hi}]")
+
+    def nodes(self) -> np.ndarray:
+        """The node positions, float64 NumPy, shape ``(n,)``."""
+        i = np.arange(self.n, dtype=np.float64)
+        if self.centres:
+            return self.lo + (i + 0.5) * (self.hi - self.lo) / self.n
+        return self.lo + i * (self.hi - self.lo) / (self.n - 1)
+
+    def spacing(self) -> float:
+        return (self.hi - self.lo) / (self.n if self.centres else self.n - 1)
+
+    def index(self, x):
+        """Continuous node index of ``x`` (``jax.numpy``), clamped to ``[0, n - 1]``."""
+        t = (x - self.lo) / self.spacing() - (0.5 if self.centres else 0.0)
+        return jnp.clip(t, 0.0, self.n - 1.0)
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "lo": self.lo, "hi": self.hi, "n": self.n,
+                "centres": self.centres}
+
+    @classmethod
+    def from_dict(cls, d: Mapping) -> Axis:
+        return cls(str(d["name"]), float(d["lo"]), float(d["hi"]), int(d["n"]),
+                   bool(d.get("centres", True)))
+
+
+class Table(eqx.Module):
+    """Values on a regular grid: ``values`` has shape ``(axes[0].n, ..., axes[-1].n, C)`` with
+    ``C = len(channels)``; ``meta`` is a JSON-serialisable dict (kept as a JSON string so that a
+    table is a hashable static structure plus one array leaf)."""
+
+    values: jax.Array
+    axes: tuple[Axis, ...] = eqx.field(static=True)
+    channels: tuple[str, ...] = eqx.field(static=True)
+    meta_json: str = eqx.field(static=True, default="{}")
+
+    def __init__(self, values, axes: Sequence[Axis], channels: Sequence[str],
+                 meta: Mapping | None = None):
+        self.axes = tuple(axes)
+        self.channels = tuple(str(c) for c in channels)
+        shape = tuple(a.n for a in self.axes) + (len(self.channels),)
+        values = values if isinstance(values, jax.Array) else np.asarray(values)
+        if values.shape != shape:
+            raise ValueError(
+                f"table values have shape {values.shape}; axes {[a.name for a in self.axes]} and "
+                f"channels {list(self.channels)} need {shape}"
+            )
+        self.values = values
+        self.meta_json = json.dumps(dict(meta or {}), sort_keys=True)
+
+    @property
+    def meta(self) -> dict:
+        return json.loads(self.meta_json)
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        return tuple(self.values.shape)
+
+    def axis(self, name: str) -> Axis:
+        for a in self.axes:
+            if a.name == name:
+                return a
+        raise KeyError(f"table has no axis {name!r}; it has {[a.name for a in self.axes]}")
+
+    def channel(self, name: str):
+        """The values of one channel, shape ``(axes[0].n, ...)``."""
+        try:
+            k = self.channels.index(name)
+        except ValueError:
+            raise KeyError(f"table has no channel {name!r}; it has {list(self.channels)}") from None
+        return self.values[..., k]
+
+    def with_meta(self, **extra) -> Table:
+        return Table(self.values, self.axes, self.channels, {**self.meta, **extra})
+
+    def lookup(self, *coords):
+        """Multilinear interpolation at ``coords`` (one array per axis, in axis order, broadcast
+        together); returns shape ``broadcast + (C,)``. Differentiable in the coordinates (inside
+        the grid; 0 where clamped) and in ``values``."""
+        if len(coords) != len(self.axes):
+            raise ValueError(f"lookup needs {len(self.axes)} coordinates "
+                             f"({[a.name for a in self.axes]}), got {len(coords)}")
+        values = jnp.asarray(self.values)
+        coords = jnp.broadcast_arrays(*(jnp.asarray(c, dtype=values.dtype) for c in coords))
+        lows, fracs = [], []
+        for ax, c in zip(self.axes, coords, strict=True):
+            t = ax.index(c)
+            f0 = jnp.clip(jnp.floor(t), 0.0, float(max(ax.n - 2, 0)))
+            lows.append(f0.astype(jnp.int32))
+            fracs.append(t - f0 if ax.n > 1 else jnp.zeros_like(t))
+        out = 0.0
+        d = len(self.axes)
+        for corner in range(2**d):
+            idx, w = [], 1.0
+            for k in range(d):
+                bit = (corner >> k) & 1
+                n = self.axes[k].n
+                idx.append(jnp.minimum(lows[k] + bit, n - 1))
+                w = w * (fracs[k] if bit else 1.0 - fracs[k])
+            out = out + w[..., None] * values[tuple(idx)]
+        return out

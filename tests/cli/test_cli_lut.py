@@ -1,0 +1,64 @@
+"""brdf-fit lut dfg: writes the table (read back equal), --json metadata, and one-line errors
+before any work for a bad size, masking, layout, channels or output path."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from brdf_fit.cli import main
+from brdf_fit.tables import read_table
+
+
+def one_error(capsys, argv, fragment):
+    """One ``brdf-fit: error:`` line naming ``fragment``, exit status 2, no traceback."""
+    try:
+        code = main(argv)
+    except SystemExit as e:  # argparse
+        code = e.code
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert code == 2 and "Traceback" not in err, err
+    assert sum("error:" in ln for ln in lines) == 1 and fragment in lines[-1], err
+
+
+def test_lut_dfg_writes_npz_and_json(tmp_path, capsys):
+    out = tmp_path / "dfg.npz"
+    code = main(["lut", "dfg", "--size", "8", "--masking", "karis", "-o", str(out), "--json",
+                 "--quiet"])
+    assert code == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["masking"] == "karis" and doc["size"] == 8 and doc["channels"] == ["A", "B"]
+    assert doc["error_estimate"]["max_abs"] < 1e-7
+    t = read_table(out)
+    assert t.values.shape == (8, 8, 2) and t.meta["masking"] == "karis"
+    assert (tmp_path / "dfg.json").exists()
+    with np.load(out) as z:
+        np.testing.assert_allclose(z["alpha"], z["roughness"] ** 2)
+
+
+@pytest.mark.parametrize(
+    "argv, fragment",
+    [
+        (["lut", "dfg", "--size", "8", "--masking", "smith"], "unknown masking"),
+        (["lut", "dfg", "--size", "8", "--layout", "unity"], "unknown layout"),
+        (["lut", "dfg", "--size", "8", "--channels", "A,E"], "--channels"),
+        (["lut", "dfg", "--size", "5000"], "--size"),
+        (["lut", "ibl"], "unknown table"),
+        (["lut", "dfg", "--half"], "half precision"),
+    ],
+)
+def test_bad_options_fail_before_work(tmp_path, capsys, argv, fragment):
+    out = tmp_path / "t.npz"
+    one_error(capsys, argv + ["-o", str(out)], fragment)
+    assert not list(tmp_path.iterdir())
+
+
+def test_bad_output_paths(tmp_path, capsys):
+    one_error(capsys, ["lut", "dfg", "-o", str(tmp_path / "nope" / "t.npz")], "does not exist")
+    one_error(capsys, ["lut", "dfg", "-o", str(tmp_path / "t.txt")], "unknown extension")
+    one_error(capsys, ["lut", "dfg", "-o", str(tmp_path / "t.npz"), "--plot",
+                       str(tmp_path / "p.txt")], "--plot")
+    assert not list(tmp_path.iterdir())
