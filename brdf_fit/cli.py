@@ -12,6 +12,7 @@
                  [--guess grid|none] [--skip-bad] [--out FILE.csv|.json] [--json] [--quiet]
     brdf-fit demo [--out DIR] [--json]
     brdf-fit lut dfg -o FILE [--size N] [--masking M] [--layout NAME] [--channels A,B] [--json]
+    brdf-fit lut albedo|eavg MODEL --axis NAME=N[:LO:HI] ... [--param NAME=VALUE] -o FILE
     brdf-fit convert phong-to-ggx [--source modified-phong|blinn-phong|...] [--exponents N ...]
                  [--metric log] [--max-zenith-deg 80] [--json]
 
@@ -702,6 +703,95 @@ def _lut_progress(enabled: bool, label: str):
     return bar, progress
 
 
+LUT_TABLES = ("dfg", "albedo", "eavg")
+
+
+def _lut_albedo(args) -> int:
+    """``lut albedo MODEL --axis mu=64 --axis alpha=64`` and ``lut eavg MODEL --axis ...``."""
+    import time
+
+    if args.model is None:
+        raise CLIError(f"lut {args.table} needs a MODEL (see 'brdf-fit models')")
+    for flag, bad in (("--masking", args.masking), ("--channels", args.channels)):
+        if bad is not None:
+            raise CLIError(f"{flag} is a lut dfg option")
+    if args.layout not in ("default", "endpoints"):
+        raise CLIError(f"lut {args.table}: --layout is default (texel centres) or endpoints")
+    from brdf_fit.tables.albedo import parse_axis
+
+    axes = {}
+    for text in args.axis or []:
+        try:
+            name, spec = parse_axis(text)
+        except ValueError as e:
+            raise CLIError(str(e)) from None
+        if name in axes:
+            raise CLIError(f"--axis {name} given twice")
+        axes[name] = spec
+    if args.table == "albedo" and "mu" not in axes:
+        raise CLIError("lut albedo needs --axis mu=N (and usually a parameter axis, e.g. "
+                       "--axis alpha=64)")
+    if args.table == "eavg" and ("mu" in axes or not axes):
+        raise CLIError("lut eavg averages over mu: give parameter axes only, e.g. --axis alpha=64")
+    if len(axes) > 3:
+        raise CLIError(f"at most 3 axes, got {len(axes)}")
+    entry = _registry().get(args.model)
+    params = parse_params(args.param, entry)
+    for name in axes:
+        if name != "mu":
+            entry.param(name)  # unknown names raise with the valid list
+    from brdf_fit.tables.export import check_output
+
+    try:
+        check_output(args.output, half=args.half, n_axes=len(axes))
+    except (ValueError, ImportError) as e:
+        raise CLIError(str(e)) from None
+    if args.plot is not None:
+        check_output_file(args.plot, (".png", ".pdf", ".svg"), "--plot")
+        if len(axes) != 2:
+            raise CLIError("--plot draws 2-D tables")
+    from brdf_fit.tables.albedo import albedo_table, average_table
+    from brdf_fit.tables.export import write_table
+
+    centres = args.layout == "default"
+    total = 1
+    for spec in axes.values():
+        total *= spec if isinstance(spec, int) else spec[0]
+    bar, progress = _lut_progress(not args.quiet, f"{args.table} {args.model} ({total} nodes)")
+    t0 = time.perf_counter()
+    try:
+        if args.table == "albedo":
+            table = albedo_table(entry.name, axes, params, centres=centres, progress=progress)
+        else:
+            table = average_table(entry.name, axes, params, centres=centres, progress=progress)
+    except ValueError as e:
+        raise CLIError(str(e)) from None
+    finally:
+        bar.close()
+    paths = write_table(table, args.output, half=args.half)
+    seconds = time.perf_counter() - t0
+    if args.plot is not None:
+        from brdf_fit.plot import table_maps
+
+        table_maps(table, title=f"{args.table} {entry.name}").savefig(args.plot, dpi=110)
+        paths.append(args.plot)
+    meta = table.meta
+    doc = {"table": args.table, "model": entry.name, "params": meta["params"],
+           "axes": [a.to_dict() for a in table.axes], "channels": list(table.channels),
+           "error_estimate": meta.get("error_estimate"), "seconds": round(seconds, 3),
+           "files": [str(p) for p in paths]}
+    if args.json:
+        print(json.dumps(doc, indent=2))
+    else:
+        err = (meta.get("error_estimate") or {}).get("max_abs")
+        shape = " x ".join(f"{a.name}={a.n}" for a in table.axes)
+        print(f"{args.table} of {entry.name} on {shape} ({','.join(table.channels)}): "
+              f"error estimate {'-' if err is None else f'{err:.2g}'} max abs; {seconds:.2f} s")
+        for p in paths:
+            print(f"wrote {p}")
+    return 0
+
+
 def cmd_lut(args) -> int:
     """Generate a lookup table (:mod:`brdf_fit.tables`) and write it; every option and the
     output path are checked before any work."""
@@ -709,8 +799,13 @@ def cmd_lut(args) -> int:
 
     from brdf_fit.tables.layouts import CHANNEL_SETS, LAYOUTS
 
+    if args.table not in LUT_TABLES:
+        raise CLIError(f"unknown table {args.table!r}; valid tables: {', '.join(LUT_TABLES)}")
     if args.table != "dfg":
-        raise CLIError(f"unknown table {args.table!r}; valid tables: dfg")
+        return _lut_albedo(args)
+    if args.model is not None or args.axis or args.param:
+        raise CLIError("lut dfg takes no MODEL, --axis or --param (it is GGX's A, B over mu and "
+                       "roughness; see lut albedo)")
     if args.layout not in LAYOUTS:
         raise CLIError(f"unknown layout {args.layout!r}; valid layouts: {', '.join(LAYOUTS)}")
     masks = ("height-correlated", "separable", "karis")
@@ -898,9 +993,16 @@ def build_parser() -> argparse.ArgumentParser:
                         "(brdf_fit.convert.phong_to_ggx.alpha_from_table)")
     v.set_defaults(func=cmd_convert)
 
-    t = sub.add_parser("lut", help="generate a lookup table (dfg: split-sum A, B of GGX) as "
-                                   ".npz, .exr, .png (16 bit) or .h")
-    t.add_argument("table", help="dfg")
+    t = sub.add_parser("lut", help="generate a lookup table (dfg: split-sum A, B of GGX; albedo "
+                                   "E(mu, ...) or eavg E_avg(...) of any model) as .npz, .exr, "
+                                   ".png (16 bit) or .h")
+    t.add_argument("table", help="dfg, albedo or eavg")
+    t.add_argument("model", nargs="?", default=None, help="albedo/eavg: registry model name")
+    t.add_argument("--axis", action="append", metavar="NAME=N[:LO:HI]",
+                   help="albedo/eavg: a grid axis, mu or a model parameter (over its declared "
+                        "interval unless LO:HI are given); repeatable, in table order")
+    t.add_argument("--param", action="append", metavar="NAME=VALUE",
+                   help="albedo/eavg: a fixed model parameter (default: the registry's)")
     t.add_argument("-o", "--output", required=True,
                    help="output file; the format from the extension: .npz (+ .json sidecar), "
                         ".exr, .png, .h")
@@ -909,8 +1011,9 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--masking", default=None,
                    help="height-correlated (default), separable or karis (k = alpha/2, UE4)")
     t.add_argument("--layout", default="default",
-                   help="default, khronos, filament, ue4, cycles (texel grid, roughness axis, "
-                        "image row order and channels of that engine's table)")
+                   help="dfg: default, khronos, filament, ue4, cycles (texel grid, roughness "
+                        "axis, image row order and channels of that engine's table); "
+                        "albedo/eavg: default (texel centres) or endpoints")
     t.add_argument("--channels", default=None, metavar="A,B|B,E|E",
                    help="what to store (default: the layout's); E = A + B")
     t.add_argument("--half", action="store_true", help=".exr: half floats instead of float32")

@@ -62,3 +62,35 @@ def test_bad_output_paths(tmp_path, capsys):
     one_error(capsys, ["lut", "dfg", "-o", str(tmp_path / "t.npz"), "--plot",
                        str(tmp_path / "p.txt")], "--plot")
     assert not list(tmp_path.iterdir())
+
+
+def test_lut_albedo_and_eavg(tmp_path, capsys):
+    out = tmp_path / "e.h"
+    assert main(["lut", "albedo", "ggx", "--param", "f0=1", "--axis", "mu=3", "--axis",
+                 "alpha=2", "-o", str(out), "--json", "--quiet"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["channels"] == ["E"] and [a["name"] for a in doc["axes"]] == ["mu", "alpha"]
+    assert read_table(out).values.shape == (3, 2, 1)
+    out2 = tmp_path / "avg.npz"
+    assert main(["lut", "eavg", "lambert", "--axis", "rho=3:0.2:0.8", "--layout", "endpoints",
+                 "-o", str(out2), "--quiet"]) == 0
+    np.testing.assert_allclose(read_table(out2).values[..., 0], [0.2, 0.5, 0.8], rtol=1e-13)
+
+
+@pytest.mark.parametrize("argv, fragment", [
+    (["lut", "albedo", "--axis", "mu=4"], "needs a MODEL"),
+    (["lut", "albedo", "ggx", "--axis", "alpha=4"], "--axis mu"),
+    (["lut", "eavg", "ggx", "--axis", "mu=4"], "parameter axes only"),
+    (["lut", "albedo", "ggx", "--axis", "mu=4", "--axis", "beta=2"], "unknown parameter"),
+    (["lut", "albedo", "nope", "--axis", "mu=4"], "nope"),
+    (["lut", "albedo", "ggx", "--axis", "mu=4", "--masking", "karis"], "lut dfg option"),
+    (["lut", "dfg", "--axis", "mu=4"], "takes no MODEL"),
+    (["lut", "albedo", "ggx", "--axis", "mu=4", "--axis", "alpha=3", "--axis", "f0=2",
+      "-o", "PNG"], ".png holds 2-D tables"),
+])
+def test_bad_albedo_requests(tmp_path, capsys, argv, fragment):
+    argv = [a.replace("PNG", str(tmp_path / "t.png")) for a in argv]
+    if "-o" not in argv:
+        argv += ["-o", str(tmp_path / "t.npz")]
+    one_error(capsys, argv, fragment)
+    assert not list(tmp_path.iterdir())
