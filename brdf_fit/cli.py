@@ -698,7 +698,8 @@ def _lut_progress(enabled: bool, label: str):
     bar = _Progress(0, enabled)
 
     def progress(done: int, total: int) -> None:
-        bar.show(done, done, total, label)
+        if bar.enabled:
+            bar.show(done, done, total, label)
 
     return bar, progress
 
