@@ -18,7 +18,8 @@ import numpy as np
 
 from brdf_fit.data import GonioData
 
-__all__ = ["in_plane_slices", "residuals", "in_plane_samples", "table_maps"]
+__all__ = ["hemisphere", "in_plane_samples", "in_plane_slices", "model_lobes", "residuals",
+           "table_maps"]
 
 #: Tolerance on angles (degrees) when picking the in-plane samples out of a scattered dataset.
 ANGLE_TOL_DEG = 0.5
@@ -209,3 +210,86 @@ def table_maps(table, title: str | None = None):
     if title:
         fig.suptitle(title)
     return fig
+
+
+def _pick(f: np.ndarray, channel) -> np.ndarray:
+    """One channel of ``(N, C)`` values: ``channel`` an index, or None (G of RGB, else the
+    first)."""
+    c = (1 if f.shape[1] == 3 else 0) if channel is None else int(channel)
+    if not 0 <= c < f.shape[1]:
+        raise ValueError(f"channel {c} out of range: the model has {f.shape[1]} channel(s)")
+    return f[:, c]
+
+
+def model_lobes(models: Sequence[tuple[str, object]], theta_i_deg: Sequence[float] = (0.0, 30.0,
+                60.0), channel=None, n_curve: int = 361, title: str | None = None):
+    """Polar in-plane lobes: the reflected radiance ``f cos(theta_o)`` for unit irradiance, one
+    polar panel per incidence angle (the normal up, the light arriving from the left, the
+    specular side on the right), one curve per model, each curve scaled to its own peak (the
+    shapes compare; the legend gives each peak)."""
+    fig = _figure(3.6 * len(theta_i_deg), 3.2 + 0.25 * len(models))
+    sweep = np.linspace(-90.0, 90.0, n_curve)
+    pairs = [_sweep(ti, sweep) for ti in theta_i_deg]
+    wi_all = np.concatenate([p[0] for p in pairs])
+    wo_all = np.concatenate([p[1] for p in pairs])
+    cos_o = np.cos(np.radians(np.abs(sweep)))
+    curves = [_pick(_eval(m, wi_all, wo_all), channel).reshape(len(theta_i_deg), n_curve)
+              for _, m in models]
+    for k, ti in enumerate(theta_i_deg):
+        ax = fig.add_subplot(1, len(theta_i_deg), k + 1, projection="polar")
+        ax.set_theta_zero_location("N")
+        ax.set_theta_direction(-1)  # +theta_o (specular side) to the right
+        ax.set_thetamin(-90)
+        ax.set_thetamax(90)
+        for (label, _), c in zip(models, curves, strict=True):
+            r = np.maximum(np.nan_to_num(c[k] * cos_o), 0.0)
+            peak = float(r.max())
+            ax.plot(np.radians(sweep), r / (peak or 1.0), label=f"{label} (peak {peak:.3g})")
+        ax.plot([math.radians(-ti)] * 2, [0, 1.05], color="0.5", lw=0.8, ls=":")
+        ax.set_title(f"theta_i = {ti:g} deg", fontsize=9)
+        ax.set_yticklabels([])
+        ax.legend(fontsize=6, loc="upper center", bbox_to_anchor=(0.5, 0.02))
+    if title:
+        fig.suptitle(title)
+    return fig
+
+
+def hemisphere(model, theta_i_deg: Sequence[float] = (0.0, 30.0, 60.0), channel=None,
+               n: int = 161, log: bool = True, title: str | None = None):
+    """``f cos(theta_o)`` over the whole hemisphere of outgoing directions, one panel per
+    incidence angle (light in the x-z plane, from -x), in the orthographic projection
+    ``(x, y) = sin(theta_o) (cos phi_o, sin phi_o)`` (the unit disk seen from above); log colour
+    scale by default."""
+    from matplotlib.colors import LogNorm
+
+    g = np.linspace(-1.0, 1.0, n)
+    x, y = np.meshgrid(g, g)
+    inside = x * x + y * y < 1.0
+    z = np.sqrt(np.clip(1.0 - x * x - y * y, 0.0, 1.0))
+    wo = np.stack([x[inside], y[inside], z[inside]], -1)
+    fig = _figure(3.6 * len(theta_i_deg), 3.3)
+    axes = fig.subplots(1, len(theta_i_deg), squeeze=False)[0]
+    for ax, ti in zip(axes, theta_i_deg, strict=True):
+        t = math.radians(ti)
+        wi = np.broadcast_to([-math.sin(t), 0.0, math.cos(t)], wo.shape)
+        img = np.full(x.shape, np.nan)
+        img[inside] = _pick(_eval(model, np.ascontiguousarray(wi), wo), channel) * wo[:, 2]
+        pos = img[np.isfinite(img) & (img > 0)]
+        norm = (LogNorm(vmin=max(pos.max() * 1e-4, pos.min()), vmax=pos.max())
+                if log and pos.size else None)
+        im = ax.imshow(np.where(img > 0, img, np.nan) if log else img, origin="lower",
+                       extent=(-1, 1, -1, 1), norm=norm, cmap="inferno")
+        ax.add_patch(_circle()((0, 0), 1.0, fill=False, lw=0.8, color="0.5"))
+        ax.set_title(f"theta_i = {ti:g} deg", fontsize=9)
+        ax.set_xticks([])
+        ax.set_yticks([])
+        fig.colorbar(im, ax=ax, shrink=0.85, label="f cos(theta_o)")
+    if title:
+        fig.suptitle(title)
+    return fig
+
+
+def _circle():
+    from matplotlib.patches import Circle
+
+    return Circle
