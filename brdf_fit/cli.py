@@ -945,6 +945,10 @@ def _fit_options(p, what: str) -> None:
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="brdf-fit", description=__doc__.split("\n")[0])
     p.add_argument("--version", action="version", version=f"brdf-fit {__version__}")
+    p.add_argument("--no-cache", action="store_true",
+                   help="do not keep compiled programs between runs (default: kept in "
+                        "$BRDF_FIT_CACHE_DIR or ~/.cache/brdf_fit/jax; BRDF_FIT_NO_CACHE=1 "
+                        "also turns it off)")
     sub = p.add_subparsers(dest="command", required=True)
 
     m = sub.add_parser("models", help="list the registered models and their parameters")
@@ -1114,8 +1118,48 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     return tuple(errors)
 
 
+#: where compiled XLA programs are kept between runs (JAX's persistent compilation cache)
+CACHE_ENV = "BRDF_FIT_CACHE_DIR"
+NO_CACHE_ENV = "BRDF_FIT_NO_CACHE"
+
+
+def cache_dir() -> str | None:
+    """The persistent compilation cache folder: ``$BRDF_FIT_CACHE_DIR``, else
+    ``$XDG_CACHE_HOME/brdf_fit/jax`` (``~/.cache/brdf_fit/jax``); None when
+    ``$BRDF_FIT_NO_CACHE`` is set (to anything but 0 or an empty string)."""
+    import os
+
+    if os.environ.get(NO_CACHE_ENV, "") not in ("", "0"):
+        return None
+    if os.environ.get(CACHE_ENV):
+        return os.environ[CACHE_ENV]
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return os.path.join(base, "brdf_fit", "jax")
+
+
+def _enable_compilation_cache(enabled: bool) -> None:
+    """Turn on JAX's persistent compilation cache for this process, through the environment
+    JAX reads when it is first imported (so ``--help`` and argument errors still import no JAX).
+    Every program is cached (minimum compile time 0): the CLI's compiles are many and short,
+    and a second run of the same command with the same shapes then compiles nothing. Without
+    effect when JAX is already imported (the tests call ``main`` in-process)."""
+    import os
+
+    path = cache_dir() if enabled else None
+    if path is None or "jax" in sys.modules:
+        return
+    try:
+        os.makedirs(path, exist_ok=True)
+    except OSError:
+        return  # an unwritable cache is no error: the command runs without it
+    os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", path)
+    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
+    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    _enable_compilation_cache(not args.no_cache)
     try:
         return int(args.func(args) or 0)
     except KeyError as exc:  # unknown model (registry.UnknownModelError)

@@ -3,8 +3,12 @@
 Shared jitted helpers live in ``tests/_helpers.py`` so every test module reuses one compilation.
 """
 
+import os
+
 import jax
 
+# CLI runs in subprocesses keep no compiled programs in the user's cache folder
+os.environ.setdefault("BRDF_FIT_NO_CACHE", "1")
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
 

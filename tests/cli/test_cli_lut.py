@@ -94,3 +94,19 @@ def test_bad_albedo_requests(tmp_path, capsys, argv, fragment):
         argv += ["-o", str(tmp_path / "t.npz")]
     one_error(capsys, argv, fragment)
     assert not list(tmp_path.iterdir())
+
+
+def test_compilation_cache_folder(monkeypatch, tmp_path):
+    """The persistent compilation cache: $BRDF_FIT_CACHE_DIR, else XDG; off with
+    BRDF_FIT_NO_CACHE=1 (set for the whole suite) and with --no-cache."""
+    from brdf_fit import cli
+
+    monkeypatch.setenv("BRDF_FIT_NO_CACHE", "0")
+    monkeypatch.setenv("BRDF_FIT_CACHE_DIR", str(tmp_path / "c"))
+    assert cli.cache_dir() == str(tmp_path / "c")
+    monkeypatch.delenv("BRDF_FIT_CACHE_DIR")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    assert cli.cache_dir() == str(tmp_path / "brdf_fit" / "jax")
+    monkeypatch.setenv("BRDF_FIT_NO_CACHE", "1")
+    assert cli.cache_dir() is None
+    assert cli.build_parser().parse_args(["--no-cache", "models"]).no_cache
