@@ -25,11 +25,14 @@ _PROBLEM = ("FitError", "FitProblem", "ParamLayout")
 _BATCH = ("fit_batch", "BatchFitResult")
 _CHECKS = ("run_checks", "CheckResult")
 _ROUGHNESS = ("alpha_to_roughness", "roughness_to_alpha")
+_SELECTION = ("select", "Selection")
+_TABLES = ("dfg_table", "read_table", "write_table", "Table")
 _MODULES = ("registry", "fresnel", "microfacet", "spectra")
 
 __all__ = sorted(
     (*_MODELS, *_FRESNEL, *_MICROFACET, *_PARAMS, *_DATA, *_IO, *_SINGLE, *_PROBLEM, *_BATCH,
-     *_CHECKS, *_ROUGHNESS, *_MODULES, "ParameterError", "conductor_fresnel", "directional_albedo",
+     *_CHECKS, *_ROUGHNESS, *_SELECTION, *_TABLES, *_MODULES, "ParameterError",
+     "conductor_fresnel", "directional_albedo",
      "__version__")
 )
 
@@ -65,6 +68,10 @@ def __getattr__(name: str):
         from brdf_fit.verify import albedo as module
     elif name in _ROUGHNESS:
         from brdf_fit.convert import roughness as module
+    elif name in _SELECTION:
+        from brdf_fit.selection import selector as module
+    elif name in _TABLES:
+        import brdf_fit.tables as module
     else:
         raise AttributeError(f"module 'brdf_fit' has no attribute {name!r}")
     value = module if name in _MODULES else getattr(module, name)

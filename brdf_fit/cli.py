@@ -11,6 +11,7 @@
     brdf-fit fit-batch DATA... --model NAME [--fix ...] [--init ...] [--metric ...]
                  [--guess grid|none] [--skip-bad] [--out FILE.csv|.json] [--json] [--quiet]
     brdf-fit demo [--out DIR] [--json]
+    brdf-fit select DATA [--candidates A,B,..] [--budget X] [--plot PNG] [--json]
     brdf-fit plot MODEL [MODEL ...] [--param NAME=VALUE] [--data FILE [--fit]] -o PNG
     brdf-fit lut dfg -o FILE [--size N] [--masking M] [--layout NAME] [--channels A,B] [--json]
     brdf-fit lut albedo|eavg MODEL --axis NAME=N[:LO:HI] ... [--param NAME=VALUE] -o FILE
@@ -758,6 +759,73 @@ def cmd_plot(args) -> int:
     return 0
 
 
+def cmd_select(args) -> int:
+    """Fit the candidates in the radiance error, measure their costs, choose the cheapest within
+    the budget (:func:`brdf_fit.selection.select`)."""
+    if args.budget is not None and not (math.isfinite(args.budget) and args.budget > 0):
+        raise CLIError(f"--budget must be a positive number (0.02 = 2%), got {args.budget}")
+    if args.plot is not None:
+        check_output_file(args.plot, (".png", ".pdf", ".svg"), "--plot")
+    reg = _registry()
+    names = None
+    if args.candidates is not None:
+        names = [c.strip() for c in args.candidates.split(",") if c.strip()]
+        if not names:
+            raise CLIError("--candidates: give at least one model name")
+        names = [reg.get(n).name for n in names]  # unknown names fail before any work
+    checks = _check_names(args.check) if args.check else ("reciprocity", "energy")
+    data = read_data(args.data)
+    _x64()
+    from brdf_fit.selection import select
+
+    bar = _Progress(0, not args.quiet)
+
+    def progress(done: int, total: int, name: str) -> None:
+        if bar.enabled:
+            bar.show(done, done, total, f"fitting {name}")
+
+    try:
+        sel = select(data, names, args.budget, checks=() if args.no_checks else checks,
+                     progress=progress)
+    finally:
+        bar.close()
+    doc = sel.to_dict()
+    doc["data"] = args.data
+    if args.plot is not None:
+        from brdf_fit.plot import selection_front
+
+        selection_front(sel, title=args.data).savefig(args.plot, dpi=110)
+        doc["plot"] = args.plot
+    if args.json:
+        print(json.dumps(doc, indent=2))
+        return 0 if sel.choice is not None else 1
+    print(f"{args.data}: {data.n} samples x {data.n_channels} channels")
+    print(f"error: {sel.error_definition}")
+    print(f"budget: {sel.budget:.4g} ({sel.budget_rule})")
+    if sel.noise_level is not None:
+        print(f"noise level (from sigma): {sel.noise_level:.4g}")
+    w = max(len(c.model) for c in sel.candidates)
+    print(f"  {'model':<{w}} {'error':>8} {'ns/eval':>8} {'k':>3} {'AIC':>10} {'BIC':>10} "
+          f"{'chi2/dof':>9} {'conv':>5}  budget pareto checks")
+    for c in sel.candidates:
+        chi2 = "-" if c.reduced_chi2 is None else f"{c.reduced_chi2:.3g}"
+        checks_txt = ",".join(f"{k}:{v}" for k, v in c.checks.items()) or "-"
+        mark = "<- choice" if c.model == sel.choice else ""
+        print(f"  {c.model:<{w}} {c.error:8.4f} {c.cost_ns:8.2f} {c.n_params:3d} {c.aic:10.1f} "
+              f"{c.bic:10.1f} {chi2:>9} {'yes' if c.converged else 'no':>5}  "
+              f"{'in' if c.within_budget else 'out':>6} {'*' if c.pareto else ' ':>6} "
+              f"{checks_txt} {mark}")
+    if sel.choice is None:
+        print("no candidate is within the budget")
+    else:
+        ch = sel.candidate(sel.choice)
+        print(f"choice: {sel.choice} ({_short_params(ch.params)}), error {ch.error:.4g}, "
+              f"{ch.cost_ns:.3g} ns per evaluation")
+    if args.plot is not None:
+        print(f"wrote {args.plot}")
+    return 0 if sel.choice is not None else 1
+
+
 LUT_TABLES = ("dfg", "albedo", "eavg")
 
 
@@ -1051,6 +1119,25 @@ def build_parser() -> argparse.ArgumentParser:
                    help="machine-readable; its rows are a small fitted exponent -> alpha table "
                         "(brdf_fit.convert.phong_to_ggx.alpha_from_table)")
     v.set_defaults(func=cmd_convert)
+
+    se = sub.add_parser("select", help="choose the cheapest model whose radiance error is "
+                                       "within a budget")
+    se.add_argument("data", help="measured data (.csv, .npz, .binary)")
+    se.add_argument("--candidates", default=None, metavar="A,B,...",
+                    help="registry names (default: lambert, oren-nayar, modified-phong, "
+                         "blinn-phong, ward, beckmann, ggx, ggx-plastic, ggx-conductor, "
+                         "cook-torrance)")
+    se.add_argument("--budget", type=float, default=None,
+                    help="largest relative RMS radiance error (0.02 = 2%%; default: twice the "
+                         "best candidate's error, at least 1.5x the noise level with sigma)")
+    se.add_argument("--check", action="append", metavar="NAME",
+                    help="checks run on each fitted candidate (default: reciprocity, energy)")
+    se.add_argument("--no-checks", action="store_true", help="run no checks")
+    se.add_argument("--plot", default=None, metavar="PNG",
+                    help="error against cost, the budget line and the choice")
+    se.add_argument("--json", action="store_true", help="machine-readable result")
+    se.add_argument("--quiet", action="store_true", help="no progress bar")
+    se.set_defaults(func=cmd_select)
 
     pl = sub.add_parser("plot", help="draw models (polar lobes, hemisphere) or data against "
                                      "models (in-plane slices, residuals)")

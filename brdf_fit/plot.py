@@ -19,7 +19,7 @@ import numpy as np
 from brdf_fit.data import GonioData
 
 __all__ = ["hemisphere", "in_plane_samples", "in_plane_slices", "model_lobes", "residuals",
-           "table_maps"]
+           "selection_front", "table_maps"]
 
 #: Tolerance on angles (degrees) when picking the in-plane samples out of a scattered dataset.
 ANGLE_TOL_DEG = 0.5
@@ -293,3 +293,33 @@ def _circle():
     from matplotlib.patches import Circle
 
     return Circle
+
+
+def selection_front(selection, title: str | None = None):
+    """Error against evaluation cost of every candidate of a
+    :class:`brdf_fit.selection.Selection`: the budget line, the Pareto front joined, the choice
+    ringed (log-log)."""
+    fig = _figure(6.0, 4.2)
+    ax = fig.subplots()
+    cands = selection.candidates
+    for c in cands:
+        colour = "tab:green" if c.within_budget else "tab:red"
+        ax.loglog(c.cost_ns, max(c.error, 1e-12), "o", color=colour)
+        ax.annotate(c.model, (c.cost_ns, max(c.error, 1e-12)), fontsize=7, xytext=(4, 3),
+                    textcoords="offset points")
+    front = sorted((c for c in cands if c.pareto), key=lambda c: c.cost_ns)
+    ax.plot([c.cost_ns for c in front], [max(c.error, 1e-12) for c in front], "-", color="0.6",
+            lw=0.8, label="Pareto front")
+    ax.axhline(selection.budget, color="k", ls="--", lw=0.8,
+               label=f"budget {selection.budget:.3g}")
+    if selection.choice is not None:
+        ch = selection.candidate(selection.choice)
+        ax.loglog(ch.cost_ns, max(ch.error, 1e-12), "o", ms=14, mfc="none", color="k",
+                  label=f"choice: {ch.model}")
+    ax.set_xlabel("cost [ns per evaluation, jit, this machine]")
+    ax.set_ylabel("relative RMS radiance error")
+    ax.legend(fontsize=7)
+    ax.grid(True, which="both", lw=0.3)
+    if title:
+        ax.set_title(title, fontsize=9)
+    return fig

@@ -1,0 +1,20 @@
+"""Model selection (layer 6): the cheapest model that renders the data within an error budget.
+
+:func:`select` fits every candidate in the error it is judged by, measures each candidate's
+evaluation cost in the same run, and reports errors, AIC/BIC, costs, checks, the Pareto front and
+the choice. It lives in :mod:`brdf_fit.selection.selector` (a module named ``select`` would be
+shadowed by the function of the same name re-exported here).
+"""
+
+from brdf_fit.selection.selector import (
+    DEFAULT_CANDIDATES,
+    ERROR_DEFINITION,
+    Candidate,
+    Selection,
+    measure_cost,
+    radiance_error,
+    select,
+)
+
+__all__ = ["DEFAULT_CANDIDATES", "ERROR_DEFINITION", "Candidate", "Selection", "measure_cost",
+           "radiance_error", "select"]
