@@ -6,7 +6,8 @@
     brdf-fit check --all [--json]
     brdf-fit synth RECIPE -o FILE [--json]
     brdf-fit fit DATA --model NAME [--fix NAME=VALUE ...] [--init NAME=VALUE ...]
-                 [--metric log|cuberoot|relative|absolute] [--solver NAME] [--max-zenith-deg X]
+                 [--metric log|cuberoot|relative|absolute|huber|cauchy] [--solver NAME]
+                 [--max-zenith-deg X]
                  [--guess grid|none] [--multistart K] [--check NAME ...] [--json]
     brdf-fit fit-batch DATA... --model NAME [--fix ...] [--init ...] [--metric ...]
                  [--guess grid|none] [--skip-bad] [--out FILE.csv|.json] [--json] [--quiet]
@@ -504,6 +505,33 @@ def _batch_rows(paths, res, channels) -> list[dict]:
     return rows
 
 
+#: a batch member is flagged when its residual rms exceeds this many times the batch median
+RMS_FLAG_FACTOR = 10.0
+#: ... or when it has fewer than this many samples per free scalar parameter (a 3-sample file
+#: is fitted exactly, with small standard errors, and no other flag catches it)
+MIN_SAMPLES_PER_PARAM = 3
+
+
+def _flag_rows(rows) -> None:
+    """Add ``flags`` to each fit-batch row: "not converged", "at bound", "rms > 10x median"
+    (the median over every file of the run) and "few samples"."""
+    if not rows:
+        return
+    med = float(np.median([r["residual_rms"] for r in rows]))
+    for r in rows:
+        k = sum(np.asarray(v).size for v in r["params"].values())
+        flags = []
+        if not r["converged"]:
+            flags.append("not converged")
+        if r["at_bound"]:
+            flags.append("at bound")
+        if med > 0 and r["residual_rms"] > RMS_FLAG_FACTOR * med:
+            flags.append(f"rms > {RMS_FLAG_FACTOR:g}x median")
+        if r["n_samples"] < MIN_SAMPLES_PER_PARAM * k:
+            flags.append(f"few samples ({r['n_samples']} for {k} parameters)")
+        r["flags"] = flags
+
+
 def _note_text(v) -> str:
     """A stderr_note entry (one reason, or one per channel; "" where defined) as text."""
     a = [str(x) for x in np.atleast_1d(np.asarray(v, object))]
@@ -532,6 +560,7 @@ def _write_batch_table(rows, path: str) -> None:
                     d[key if kind == "params" else f"stderr_{key}"] = f"{x:.10g}"
         d["at_bound"] = ";".join(r["at_bound"])
         d["stderr_note"] = ";".join(f"{k}: {_note_text(v)}" for k, v in r["stderr_note"].items())
+        d["flags"] = ";".join(r.get("flags", []))
         flat.append(d)
     fields = list(dict.fromkeys(k for d in flat for k in d))
     with open(path, "w", newline="") as fh:
@@ -575,6 +604,7 @@ def cmd_fit_batch(args) -> int:
         finally:
             progress.close()
         rows += _batch_rows(paths, res, channels)
+    _flag_rows(rows)
     if args.out is not None:
         _write_batch_table(rows, args.out)
     if args.json:
@@ -587,6 +617,9 @@ def cmd_fit_batch(args) -> int:
         for r in rows:
             vals = "  ".join(_fmt(r["params"][k]) for k in names)
             flag = "" if not r["at_bound"] else f"  (at bound: {', '.join(r['at_bound'])})"
+            other = [f for f in r["flags"] if f not in ("not converged", "at bound")]
+            if other:
+                flag += f"  ({'; '.join(other)})"
             unid = [k for k, v in r["stderr_note"].items() if "not identifiable" in _note_text(v)]
             if unid:
                 flag += f"  (stderr undefined, not identifiable: {', '.join(unid)})"
@@ -1001,7 +1034,9 @@ def _fit_options(p, what: str) -> None:
     p.add_argument("--guess", default="grid", help="start of the parameters without --init: grid "
                                                     "(default: a coarse design on a subsample) "
                                                     "or none (the registry defaults)")
-    p.add_argument("--metric", default="log", help="log (default), cuberoot, relative, absolute")
+    p.add_argument("--metric", default="log",
+                   help="log (default), cuberoot, relative, absolute, or the robust huber / "
+                        "cauchy losses of the log residual (for outliers; not with sigma)")
     p.add_argument("--max-zenith-deg", type=float, default=None,
                    help=f"{what} samples with either direction beyond this zenith angle")
     p.add_argument("--cos-weight", action="store_true", help="weight residuals by cos(theta_i)")
