@@ -4,6 +4,7 @@
     python benchmarks/bench_fit_batch.py [--problems 10000] [--samples 300]
                                          [--scipy-subset 1000] [--repeats 3]
                                          [--vmap-subset 2000] [--out DIR]
+    python benchmarks/bench_fit_batch.py --faults [--fault-sizes 1000,10000] [--samples 300]
 
 Problems: registry ``ggx`` (GGX D, height-correlated Smith, Schlick F), ``alpha`` and RGB ``f0``
 free; per problem ``--samples`` random direction pairs (cos(theta) uniform in [0.05, 1], phi
@@ -36,6 +37,18 @@ variants          on ``--vmap-subset`` problems: one plain vmapped solve (``chun
 ``sharded``       ``fit_batch`` in a child process with
                   ``XLA_FLAGS=--xla_force_host_platform_device_count=2`` (2 host devices,
                   ``shard=True``), compared with the unsharded parameters.
+
+``--faults``      only this section (issue 16, "faults a batch must survive"): per size in
+                  ``--fault-sizes``, the clean batch of that many problems and the same batch
+                  with 4 pathological members appended (an all-black file, f = 1000
+                  everywhere, one outlier of 1e6 in a good file, a file of 3 samples: weights
+                  0 on the rest), both with ``fit_batch``'s defaults (as ``brdf-fit
+                  fit-batch`` calls it: weights given, rtol = atol = 1e-10); ``--repeats``
+                  warm calls each, alternating, medians compared (the clean call first; the
+                  faulty batch's larger bucket compiles in its own cold call, not timed). The
+                  good members' parameters must equal the clean batch's (max |diff| reported).
+                  Written to a "Faults" section of ``fit_batch.md`` (replaced on a rerun, kept
+                  by the full run) and the ``"faults"`` key of ``fit_batch.json``.
 
 Accuracy (checked before any ratio is reported; the script exits non-zero if the batch is
 worse): per problem, batch loss vs scipy loss on the subset (``(L_batch - L_scipy)/L_scipy``),
@@ -225,6 +238,124 @@ def sharded(args, B, M, r):
     return sh
 
 
+FAULTS = ("all black", "f = 1000", "one outlier of 1e6", "3 samples")
+#: the Faults section's title in fit_batch.md (kept by the full run, replaced by --faults)
+FAULT_HEAD = "## Faults: a batch with pathological members (--faults)"
+
+
+def with_faults(wi, wo, v):
+    """The batch followed by one member per fault of :data:`FAULTS` (copies of its first four
+    members' directions) and the weights (the 3-sample member's other samples masked); the
+    same construction as ``tests/fitting/test_batch_faults.py``."""
+    B = v.shape[0]
+    wi2, wo2, v2 = (np.concatenate([x, x[:4]]) for x in (wi, wo, v))
+    w = np.ones_like(v2)
+    v2[B] = 0.0
+    v2[B + 1] = 1000.0
+    v2[B + 2, 17 % v.shape[1], :] = 1e6
+    w[B + 3, 3:] = 0.0
+    return wi2, wo2, v2, w
+
+
+def fault_run(B, M, seed, repeats):
+    """Clean vs faulty batch of ``B`` good problems: medians of ``repeats`` warm calls each."""
+    wi, wo, v, _, _ = make_problems(B, M, seed)
+    wi2, wo2, v2, w2 = with_faults(wi, wo, v)
+    w = np.ones_like(v)
+    clean, c_cold = run_batch(wi, wo, v, weight=w)
+    faulty, f_cold = run_batch(wi2, wo2, v2, weight=w2)
+    tc, tf = [], []
+    for _ in range(repeats):
+        clean, dt = run_batch(wi, wo, v, weight=w)
+        tc.append(dt)
+        faulty, dt = run_batch(wi2, wo2, v2, weight=w2)
+        tf.append(dt)
+    med = np.median(faulty.residual_rms)
+    members = []
+    for i, name in enumerate(FAULTS):
+        b = B + i
+        members.append({
+            "fault": name, "converged": bool(faulty.converged[b]), "steps": int(faulty.steps[b]),
+            "at_bound": [k for k, x in faulty.at_bound.items() if np.asarray(x[b]).any()],
+            "rms_over_batch_median": float(faulty.residual_rms[b] / med),
+            "n_samples": int(faulty.n_samples[b])})
+    tail = [rd for rd in faulty.rounds if not (rd.get("guess") or rd.get("init")
+                                               or rd.get("finalise"))]
+    return {
+        "problems": B, "samples": M, "seconds_clean": float(np.median(tc)),
+        "seconds_faulty": float(np.median(tf)), "seconds_clean_all": tc,
+        "seconds_faulty_all": tf, "seconds_cold_clean": c_cold, "seconds_cold_faulty": f_cold,
+        "ratio": float(np.median(tf) / np.median(tc)),
+        "max_abs_diff_good_params": float(max(
+            np.max(np.abs(faulty.params[k][:B] - clean.params[k])) for k in ("alpha", "f0"))),
+        "good_steps_equal": bool(np.array_equal(faulty.steps[:B], clean.steps)),
+        "lane_steps_clean": clean.lane_steps(), "lane_steps_faulty": faulty.lane_steps(),
+        "chunks_clean": sum(1 for rd in clean.rounds if not (rd.get("guess") or rd.get("init")
+                                                             or rd.get("finalise"))),
+        "chunks_faulty": len(tail),
+        "tail_seconds_faulty": float(sum(rd["seconds"] for rd in tail
+                                         if rd["active"] <= len(FAULTS))),
+        "members": members}
+
+
+def faults_main(args, command, info) -> int:
+    sizes = [int(x) for x in args.fault_sizes.split(",")]
+    rows = []
+    for B in sizes:
+        print(f"faults: {B} problems ...", flush=True)
+        rows.append(fault_run(B, args.samples, args.seed, args.repeats))
+        print(f"  clean {rows[-1]['seconds_clean']:.3f} s, faulty "
+              f"{rows[-1]['seconds_faulty']:.3f} s, ratio {rows[-1]['ratio']:.2f}", flush=True)
+    info["loadavg_end"] = _loadavg()
+    doc = {"command": command, "machine": info, "rows": rows}
+    args.out.mkdir(parents=True, exist_ok=True)
+    jpath = args.out / "fit_batch.json"
+    old = json.loads(jpath.read_text()) if jpath.exists() else {}
+    old["faults"] = doc
+    jpath.write_text(json.dumps(old, indent=1))
+    mpath = args.out / "fit_batch.md"
+    text = mpath.read_text() if mpath.exists() else ""
+    text = text.split(FAULT_HEAD)[0].rstrip("\n")
+    mpath.write_text((text + "\n\n" if text else "") + faults_markdown(doc))
+    print(f"wrote {mpath}")
+    return 0 if all(r["max_abs_diff_good_params"] <= 1e-6 for r in rows) else 1
+
+
+def faults_markdown(doc) -> str:
+    info, rows = doc["machine"], doc["rows"]
+    L = [FAULT_HEAD, "", "Command:", "", "```", doc["command"], "```", "",
+         f"- date: {info['date_utc']}",
+         f"- CPU: {info['cpu_model']} ({info['cpu_count']} logical cores, "
+         f"{info['cpus_usable']} usable); jax {info['jax']}, numpy {info['numpy']}",
+         f"- CPU busy just before the start: {info['cpu_busy_before_start']}; load average at "
+         f"start {info['loadavg_start']}, at end {info['loadavg_end']} (**other jobs shared "
+         "this 2-core machine** when these are high)",
+         "- clean batch: the benchmark's GGX problems (alpha + RGB f0, "
+         f"{rows[0]['samples']} samples, 1% noise); faulty batch: the same followed by 4 "
+         f"members ({', '.join(FAULTS)}; the last masked by weights). `fit_batch` defaults "
+         "(as the CLI's `fit-batch`), weights given to both; times are medians of warm calls, "
+         "clean and faulty alternating, in one process", "",
+         "| good problems | clean (s) | faulty (s) | **faulty / clean** | good params max "
+         "abs diff | good steps equal | lane-steps clean / faulty | chunks clean / faulty | "
+         "faulty tail (s, <= 4 lanes active) |",
+         "|---:|---:|---:|---:|---:|---|---|---|---:|"]
+    for r in rows:
+        L.append(f"| {r['problems']} | {r['seconds_clean']:.3f} | {r['seconds_faulty']:.3f} | "
+                 f"**{r['ratio']:.2f}** | {_f(r['max_abs_diff_good_params'])} | "
+                 f"{r['good_steps_equal']} | {r['lane_steps_clean']} / "
+                 f"{r['lane_steps_faulty']} | {r['chunks_clean']} / {r['chunks_faulty']} | "
+                 f"{r['tail_seconds_faulty']:.3f} |")
+    L += ["", f"The faulty members (largest run, {rows[-1]['problems']} good problems):", "",
+          "| fault | converged | steps | at bound | rms / batch median | samples |",
+          "|---|---|---:|---|---:|---:|"]
+    for m in rows[-1]["members"]:
+        L.append(f"| {m['fault']} | {m['converged']} | {m['steps']} | "
+                 f"{', '.join(m['at_bound']) or '-'} | {_f(m['rms_over_batch_median'])} | "
+                 f"{m['n_samples']} |")
+    L += [""]
+    return "\n".join(L)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--problems", type=int, default=10000)
@@ -240,12 +371,18 @@ def main(argv=None) -> int:
                     help="if the sharded child fails on all problems, retry on this many")
     ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "results")
     ap.add_argument("--child-out", default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--faults", action="store_true",
+                    help="only the faulty-batch timing (a section of fit_batch.md)")
+    ap.add_argument("--fault-sizes", default="1000,10000",
+                    help="comma-separated good-problem counts for --faults")
     args = ap.parse_args(argv)
     if args.child_out:
         return child(args)
     command = "python " + " ".join(shlex.quote(a) for a in
                                    ["benchmarks/bench_fit_batch.py", *sys.argv[1:]])
     info = machine_info()
+    if args.faults:
+        return faults_main(args, command, info)
     B, M = args.problems, args.samples
     wi, wo, v, ta, tf = make_problems(B, M, args.seed)
     rng = np.random.default_rng(args.seed + 1)
@@ -344,9 +481,15 @@ def main(argv=None) -> int:
     # correctness gate: the batch must be at least as good as scipy on every subset problem
     worst = max(res[m]["batch_loss_rel_vs_scipy"]["max"] for m in SCIPY)
     res["accuracy_ok"] = bool(worst <= 1e-6)
-    (args.out / "fit_batch.json").write_text(json.dumps({"command": command, "machine": info,
-                                                        **res}, indent=1))
-    write_markdown(args.out / "fit_batch.md", command, info, res)
+    jpath, mpath = args.out / "fit_batch.json", args.out / "fit_batch.md"
+    kept = json.loads(jpath.read_text()).get("faults") if jpath.exists() else None
+    jpath.write_text(json.dumps({"command": command, "machine": info, **res,
+                                 **({"faults": kept} if kept else {})}, indent=1))
+    old_md = mpath.read_text() if mpath.exists() else ""
+    write_markdown(mpath, command, info, res)
+    if FAULT_HEAD in old_md:  # the --faults section of an earlier run is kept
+        mpath.write_text(mpath.read_text().rstrip("\n") + "\n\n" + FAULT_HEAD
+                         + old_md.split(FAULT_HEAD, 1)[1])
     print(f"wrote {args.out / 'fit_batch.md'}")
     return 0 if res["accuracy_ok"] else 1
 

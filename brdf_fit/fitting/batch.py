@@ -99,6 +99,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from brdf_fit.data import MAX_VALUE
 from brdf_fit.fitting import guess as _guess
 from brdf_fit.fitting._lm import LMState
 from brdf_fit.fitting._schedule import (
@@ -195,6 +196,28 @@ class BatchFitResult:
         }
 
 
+def check_inputs(**arrays) -> None:
+    """Raise :class:`~brdf_fit.fitting.problem.FitError` naming the first offending problem
+    and sample of a batch's inputs (each (B, M, ...) or None) before anything is fitted: a NaN
+    or an infinity in any of them, a value beyond :data:`brdf_fit.data.MAX_VALUE` in magnitude
+    (as :meth:`brdf_fit.data.GonioData.validate`: its squares would overflow the normal
+    equations), a negative weight or sigma. A file read by :func:`brdf_fit.io.read` has passed
+    the same tests with its name and line; these are for arrays built in memory."""
+    for name, a in arrays.items():
+        if a is None:
+            continue
+        tests = [(~np.isfinite(a), "is not finite")]
+        if name == "values":
+            tests.append((np.abs(np.where(np.isfinite(a), a, 0.0)) > MAX_VALUE,
+                          f"exceeds {MAX_VALUE:g} 1/sr in magnitude (brdf_fit.data.MAX_VALUE)"))
+        if name in ("weight", "sigma"):
+            tests.append((np.where(np.isfinite(a), a, 0.0) < 0, "is negative"))
+        for bad, what in tests:
+            if bad.any():
+                b, m = (int(i) for i in np.argwhere(bad.reshape(a.shape[:2] + (-1,)).any(-1))[0])
+                raise FitError(f"problem {b}, sample {m}: {name} {what} "
+                               f"({np.asarray(a[b, m]).tolist()})")
+
 
 def fit_batch(
     wi,
@@ -259,12 +282,11 @@ def fit_batch(
         np.asarray(weight, float).reshape(f.shape[:2] + (-1,)), f.shape).copy()
     sg = None if sigma is None else np.broadcast_to(
         np.asarray(sigma, float).reshape(f.shape[:2] + (-1,)), f.shape).copy()
+    check_inputs(wi=wi, wo=wo, values=f, weight=w, sigma=sg)
     if max_zenith_deg is not None:
         cz = math.cos(math.radians(max_zenith_deg))
         keep = (wi[..., 2] >= cz) & (wo[..., 2] >= cz)
         w = np.where(keep[..., None], 1.0 if w is None else w, 0.0)
-    if not np.all(np.isfinite(f)) or (w is not None and np.any(w < 0)):
-        raise FitError("values must be finite and weights non-negative")
     floor = RELATIVE_FLOOR * np.maximum(np.max(np.abs(f), axis=(1, 2)), DATA_SCALE_FLOOR)
     fix = dict(fix or {})
     init = dict(init or {})
