@@ -30,7 +30,7 @@ from brdf_fit.models._base import AbstractBRDF, QuadratureLobe, expand_channels
 from brdf_fit.models._lobes import (
     EXPONENT_MAX,
     check_exponent,
-    cos_alpha_r,
+    cos_alpha_r_pow,
     diffuse_mirror_pdf,
     finish_sample,
     half_vector,
@@ -128,7 +128,7 @@ class PhongOriginal(AbstractBRDF):
 
 def _modified_phong_lobe(wi, wo, exponent):
     """``(n+2)/(2 pi) cos^n(alpha_r)``: the lobe normalised on the cosine-weighted hemisphere."""
-    return (exponent + 2.0) * INV_TWO_PI * safe_pow(cos_alpha_r(wi, wo), exponent)
+    return (exponent + 2.0) * INV_TWO_PI * cos_alpha_r_pow(wi, wo, exponent)
 
 
 class ModifiedPhong(AbstractBRDF):

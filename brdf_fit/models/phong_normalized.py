@@ -24,13 +24,19 @@ import equinox as eqx
 import jax.numpy as jnp
 
 from brdf_fit.core.frame import frame_from_normal, mirror, to_world
-from brdf_fit.core.numerics import INV_TWO_PI, safe_pow
+from brdf_fit.core.numerics import INV_TWO_PI
 from brdf_fit.core.params import Channels, Entry, Param, Scalar, bounded
 from brdf_fit.core.phong_normaliser import ARVO_MAX_N, METHODS, normaliser
 from brdf_fit.core.validate import check_param
 from brdf_fit.core.warp import sample_power_cosine
 from brdf_fit.models._base import AbstractBRDF, QuadratureLobe, expand_channels
-from brdf_fit.models._lobes import EXPONENT_MAX, finish_sample, max_over_channels, upper
+from brdf_fit.models._lobes import (
+    EXPONENT_MAX,
+    cos_alpha_r_pow,
+    finish_sample,
+    max_over_channels,
+    upper,
+)
 
 __all__ = ["EnergyNormalizedPhong", "registry_entries"]
 
@@ -74,14 +80,14 @@ class EnergyNormalizedPhong(AbstractBRDF):
     def eval(self, wi, wo):
         ok = upper(wi, wo)
         n = self._n()
-        lobe = safe_pow(self._cos_lobe(wi, wo), n) / self.normaliser(wo)
+        lobe = cos_alpha_r_pow(wi, wo, n) / self.normaliser(wo)
         lobe = jnp.where(ok, lobe, 0.0)
         return expand_channels(lobe, self.channels()) * self.rho_s
 
     def pdf(self, wi, wo):
         ok = upper(wi, wo)
         n = self._n()
-        p = (n + 1.0) * INV_TWO_PI * safe_pow(self._cos_lobe(wi, wo), n)
+        p = (n + 1.0) * INV_TWO_PI * cos_alpha_r_pow(wi, wo, n)
         return jnp.where(ok, p, 0.0)
 
     def sample(self, wo, uc, u):

@@ -59,12 +59,12 @@ import equinox as eqx
 import jax.numpy as jnp
 
 from brdf_fit.core.frame import split
-from brdf_fit.core.numerics import INV_PI, safe_hypot, safe_pow
+from brdf_fit.core.numerics import INV_PI, safe_hypot
 from brdf_fit.core.params import Channels, Entry, Param, Scalar, bounded
 from brdf_fit.core.validate import ParameterError, check_param, check_scalar
 from brdf_fit.models._base import AbstractBRDF, QuadratureLobe, expand_channels
 from brdf_fit.models._lobes import (
-    cos_alpha_r,
+    cos_alpha_r_pow,
     lobe_probability,
     power_cosine_pdf,
     sample_diffuse_or_mirror,
@@ -163,7 +163,7 @@ class Strauss(AbstractBRDF):
         rj = jnp.minimum(1.0, rn + (rn + KJ) * j)
         ch = self.channels()
         cs = 1.0 + self.metalness * expand_channels(1.0 - fr, ch) * (self.color - 1.0)
-        lobe = safe_pow(cos_alpha_r(wis, wos), self.exponent()) * rj / cl
+        lobe = cos_alpha_r_pow(wis, wos, self.exponent()) * rj / cl
         val = d * rd * self.color + cs * expand_channels(lobe, ch)
         return jnp.where(expand_channels(ok, ch), val, 0.0)
 

@@ -240,3 +240,114 @@ def test_registry_metadata():
     e = registry.get("htsg")
     assert e.year == 1991 and e.catalogue == "He-Torrance-Sillion-Greenberg" and e.sampler
     assert registry.get("he") is e
+
+
+# ----------------------------------------------------------------------------- float32 (issue 16)
+
+#: float32 against float64: the directional-diffuse term is a product of ~10 factors each good to
+#: a few float32 ulp, times the series whose log-weights carry an absolute round-off of ~30 eps
+#: (the largest exponent magnitude, see _series): measured <= 2e-5 relative over sigma0, tau, eta,
+#: k = 1e-6..1e6 (directions down to cos = 1e-3); 1e-4 leaves a factor 5
+F32_RTOL = 1e-4
+ISSUE_WI, ISSUE_WO = np.array([0.6, 0.0, 0.8]), np.array([-0.6, 0.0, 0.8])
+
+
+def _dd_and_eval(p, wi, wo):
+    m = model(p)
+    return m.directional_diffuse(wi, wo), m.eval(wi, wo)
+
+
+_dd_and_eval_batch = jax.jit(jax.vmap(_dd_and_eval, in_axes=(0, None, None)))
+
+
+def _grid(name, values, base=SMOOTH):
+    grid = {k: np.repeat(np.asarray(v, float)[None], len(values), 0) for k, v in base.items()}
+    grid[name] = np.asarray(values, float)
+    return grid
+
+
+def _both_precisions(grid, wi, wo):
+    out = {}
+    for dt in (jnp.float64, jnp.float32):
+        out[dt] = [np.asarray(x, float) for x in _dd_and_eval_batch(
+            {k: jnp.asarray(v, dt) for k, v in grid.items()}, jnp.asarray(wi, dt),
+            jnp.asarray(wo, dt))]
+    return out[jnp.float64], out[jnp.float32]
+
+
+def test_float32_large_sigma0_issue_case():
+    """Issue 16: sigma0 = 300 gave (1.9e14, 6.3, 1.1e29) and 1000 gave inf in float32 (eval is
+    ~(0.095, 0.064, 0.032) = albedo/pi); the series' log-weights were ~g log g (g ~ 2e7 .. 2e9)
+    with an absolute float32 round-off of tens."""
+    grid = _grid("sigma0", [100.0, 300.0, 1000.0, 1e4])
+    (dd64, f64), (dd32, f32) = _both_precisions(grid, ISSUE_WI[None], ISSUE_WO[None])
+    assert np.all(np.isfinite(f32)) and np.all(np.isfinite(dd32))
+    np.testing.assert_allclose(f32, f64, rtol=F32_RTOL)
+    np.testing.assert_allclose(f32[:, 0], [[0.3 / math.pi, 0.2 / math.pi, 0.1 / math.pi]] * 4,
+                               rtol=1e-5)
+    assert np.all(dd64 > 0)
+    np.testing.assert_allclose(dd32, dd64, rtol=F32_RTOL)  # the small dd term itself, relative
+
+
+def test_float32_large_sigma0_gradient_and_sample_weights():
+    """The gradient at sigma0 = 1000 (NaN before) and the sample weights at 1e4 (inf before) are
+    finite in float32; the float32 gradient matches float64."""
+    wi, wo = jnp.asarray(ISSUE_WI), jnp.asarray(ISSUE_WO)
+
+    def total(p, dt):
+        m = astype(model(p), dt)
+        return jnp.sum(m.eval(wi.astype(dt), wo.astype(dt)))
+
+    p = {k: np.asarray(v, float) for k, v in SMOOTH.items()}
+    p["sigma0"] = np.asarray(1000.0)
+    grads = {}
+    for dt in (jnp.float64, jnp.float32):
+        grads[dt] = jax.jit(jax.grad(total), static_argnums=1)(
+            {k: jnp.asarray(v, dt) for k, v in p.items()}, dt)
+    for k in p:
+        g32 = np.asarray(grads[jnp.float32][k], float)
+        assert np.all(np.isfinite(g32)), k
+        scale = np.max(np.abs(np.asarray(grads[jnp.float64][k])))
+        np.testing.assert_allclose(g32, grads[jnp.float64][k], rtol=1e-3, atol=1e-3 * scale,
+                                   err_msg=k)
+    from _helpers import assert_sampling_finite
+
+    for s0 in (1e4, 1e6):
+        q = dict(SMOOTH, sigma0=s0)
+        assert_sampling_finite(astype(model(q), jnp.float32), jnp.float32)
+
+
+@pytest.mark.parametrize("name", ["sigma0", "tau"])
+def test_float32_matches_float64_over_the_interval(name):
+    """sigma0 and tau from 1e-6 to 1e6 (g from 1e-12 to 1e15): the directional-diffuse term in
+    float32 equals float64 to F32_RTOL relative wherever float64 is above 1e-30 (float32's
+    normal range ends at 1.2e-38), at normal, 45 degree and grazing (cos = 1e-3) directions."""
+    cos = [1.0, math.sqrt(0.5), 0.3, 1e-3]
+    dirs = [dir_from_cos(c, ph) for c in cos for ph in (0.0, math.pi)]
+    wi = np.array([a for a in dirs for _ in dirs])
+    wo = np.array([b for _ in dirs for b in dirs])
+    values = 10.0 ** np.arange(-6, 7)
+    (dd64, f64), (dd32, f32) = _both_precisions(_grid(name, values), wi, wo)
+    assert np.all(np.isfinite(dd32)) and np.all(np.isfinite(f32))
+    ok = dd64 > 1e-30
+    assert ok.sum() > 0.5 * ok.size
+    np.testing.assert_allclose(dd32[ok], dd64[ok], rtol=F32_RTOL)
+    assert np.all(np.abs(dd32[~ok]) <= 1e-29)
+    np.testing.assert_allclose(f32, f64, rtol=F32_RTOL, atol=1e-30)
+
+
+def test_series_float32_large_g():
+    """The rough-regime series in float32 against float64 for g = 56 .. 1e14 (before the fix:
+    7090 times too large at g = 1e7, inf at 1e8); the float64 value against the asymptote
+    g^2 Sigma'(T = 0) = g E[1/N] = 1 + 1/g + 2/g^2 + O(g^-3) (N ~ Poisson(g), conditioned
+    on N >= 1)."""
+    g = np.array([56.0, 300.0, 1e3, 1e5, 1e7, 1e8, 1e10, 1e12, 1e14])
+    T = np.array([0.0, 10.0, 1e3, 1e4, 1e8, 0.0, 1e10, 0.0, 1e14])
+    out = {}
+    for dt in (jnp.float64, jnp.float32):
+        gj, Tj = jnp.asarray(g, dt), jnp.asarray(T, dt)
+        out[dt] = np.asarray(_series(jnp.log(gj), gj, Tj, dt), float)
+    assert np.all(out[jnp.float32] > 0)
+    np.testing.assert_allclose(out[jnp.float32], out[jnp.float64], rtol=F32_RTOL)
+    big = (T == 0) & (g >= 1e8)
+    np.testing.assert_allclose(g[big] ** 2 * out[jnp.float64][big], 1 + 1 / g[big], rtol=1e-13)
