@@ -23,11 +23,13 @@ from brdf_fit.core.microfacet import (
 )
 from brdf_fit.core.params import Entry, Param, UnknownModelError
 from brdf_fit.models import (
+    KullaContyLobe,
     Lambert,
     MicrofacetBRDF,
     Mirror,
     Mixture,
     Scaled,
+    TurquinCompensated,
     ashikhmin_shirley,
     beard_maxwell,
     cook_torrance_1982,
@@ -292,6 +294,72 @@ register(_smith_entry(
     reference=f"{_HEITZ}; exact conductor Fresnel",
     description="anisotropic GGX, height-correlated Smith G, exact conductor Fresnel (gold)",
     tags=("anisotropic",),
+))
+
+_KULLA_CONTY = (
+    "C. Kulla, A. Conty, Revisiting Physically Based Shading at Imageworks, SIGGRAPH 2017 course "
+    "notes (the multiple-scattering lobe F_ms (1 - E(mu_o))(1 - E(mu_i))/(pi (1 - E_avg)) and "
+    "F_ms = F_avg^2 E_avg/(1 - F_avg (1 - E_avg)))"
+)
+_TURQUIN = (
+    "E. Turquin, Practical multiple scattering compensation for microfacet models, Industrial "
+    "Light & Magic technical report, 2019"
+)
+_MS_SAMPLER = ("one-sample mixture: exact visible normals (GGX lobe) + cosine (multiple-scattering "
+               "lobe), picked by albedo")
+
+
+def _ggx_ms(alpha, fresnel):
+    """GGX (height-correlated Smith) plus its Kulla-Conty multiple-scattering lobe."""
+    return Mixture(lobes=(_mf(GGX(alpha), SmithHeightCorrelated(), fresnel),
+                          KullaContyLobe(alpha=alpha, fresnel=fresnel)))
+
+
+register(Entry(
+    name="ggx-ms",
+    year=2017,
+    catalogue=None,
+    sampler=_MS_SAMPLER,
+    builder=lambda alpha, f0: _ggx_ms(alpha, SchlickFresnel(f0)),
+    params=(_alpha(), _F0),
+    reference=f"{_KULLA_CONTY}; {_HEITZ} (eq. 99); {_SCHLICK} (F_avg = (20 F0 + 1)/21); "
+              f"compare {_TURQUIN}",
+    description="GGX + Kulla-Conty multiple-scattering lobe (tabulated E, E_avg), Schlick F",
+    aliases=("ggx-multiscatter", "ggx-kulla-conty"),
+))
+
+register(Entry(
+    name="ggx-conductor-ms",
+    year=2017,
+    catalogue=None,
+    sampler=_MS_SAMPLER,
+    builder=lambda alpha, eta, k: _ggx_ms(alpha, ConductorFresnel(eta, k)),
+    params=(_alpha(), _ETA_AU, _K_AU),
+    reference=f"{_KULLA_CONTY}; {_HEITZ}; exact conductor Fresnel (Born & Wolf 1.5.2), F_avg by "
+              "32-point Gauss-Legendre in mu",
+    description="GGX + Kulla-Conty multiple-scattering lobe, exact conductor Fresnel (gold, RGB)",
+    aliases=("rough-conductor-ms",),
+))
+
+register(Entry(
+    name="ggx-ms-turquin",
+    year=2019,
+    catalogue=None,
+    sampler="exact visible normals (the GGX lobe's; weight times the compensation factor)",
+    builder=lambda alpha, f0: TurquinCompensated(
+        lobe=_mf(GGX(alpha), SmithHeightCorrelated(), SchlickFresnel(f0)), f0=f0),
+    params=(_alpha(), _F0),
+    reference=f"{_TURQUIN} (f = (1 + F0 (1 - E(mu_o))/E(mu_o)) f_ss, E tabulated as for "
+              f"ggx-ms); {_HEITZ} (eq. 99); {_SCHLICK}",
+    description="GGX (Schlick F) scaled by Turquin's multiple-scattering factor at the view "
+                "cosine",
+    expected_failures={
+        "reciprocity": (
+            "the factor 1 + F0 (1 - E(mu_o))/E(mu_o) depends on the view cosine only "
+            "(Turquin 2019 accepts this): max |f(wi, wo) - f(wo, wi)| / max f = 4.4e-3 "
+            "at the defaults (alpha = 0.3, f0 = 0.04)"
+        ),
+    },
 ))
 
 register(Entry(

@@ -20,7 +20,9 @@ from __future__ import annotations
 import abc
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
+import numpy as np
 
 from brdf_fit.core.numerics import pow5, safe_div, safe_hypot, safe_sqrt
 from brdf_fit.core.params import Channels, Scalar, bounded
@@ -36,7 +38,17 @@ __all__ = [
     "DielectricFresnel",
     "ConductorFresnel",
     "ConstantFresnel",
+    "FRESNEL_AVERAGE_ORDER",
+    "fresnel_average",
 ]
+
+#: Gauss-Legendre order of :func:`fresnel_average` (the cosine-weighted hemispherical average of
+#: a Fresnel curve). Measured against 4000 nodes (float64): gold (the registry's effective RGB
+#: n, k, red channel at the box k = 100) 6.7e-13, copper- and aluminium-like n, k <= 1e-14,
+#: eta = 1.5 with k = 100: 1.1e-9, a dielectric (k = 0, eta = 1.5) 1.6e-14. Only the kink of
+#: total internal reflection (k = 0, eta < 1, not a conductor: eta = 1/1.5 misses by 1e-2)
+#: converges slowly.
+FRESNEL_AVERAGE_ORDER = 32
 
 
 def schlick(cos, f0, f90=1.0):
@@ -147,6 +159,11 @@ class AbstractFresnel(eqx.Module):
     def reflectance_hint(self):
         """Largest normal-incidence reflectance over channels (mixtures pick lobes with it)."""
 
+    def average(self):
+        """The cosine-weighted hemispherical average ``F_avg = 2 Int_0^1 F(mu) mu dmu`` (per
+        channel): :func:`fresnel_average` by default, closed forms where they exist."""
+        return fresnel_average(self)
+
 
 class SchlickFresnel(AbstractFresnel):
     """Schlick's approximation as a microfacet-model component. ``f0`` may be RGB."""
@@ -159,6 +176,11 @@ class SchlickFresnel(AbstractFresnel):
 
     def reflectance_hint(self):
         return jnp.max(jnp.asarray(self.f0))
+
+    def average(self):
+        """``F0 + (F90 - F0)/21``: ``2 Int_0^1 (1 - mu)^5 mu dmu = 2 B(2, 6) = 2 (1! 5!/7!) =
+        1/21``, so for ``F90 = 1`` it is ``(20 F0 + 1)/21`` (Kulla & Conty 2017)."""
+        return self.f0 + (self.f90 - self.f0) / 21.0
 
 
 class DielectricFresnel(AbstractFresnel):
@@ -201,3 +223,21 @@ class ConstantFresnel(AbstractFresnel):
 
     def reflectance_hint(self):
         return jnp.max(jnp.asarray(self.value))
+
+    def average(self):
+        return jnp.asarray(self.value)
+
+
+def fresnel_average(fresnel) -> jnp.ndarray:
+    """``F_avg = 2 Int_0^1 F(mu) mu dmu`` of a Fresnel part (any callable of ``cos``), by
+    Gauss-Legendre of order :data:`FRESNEL_AVERAGE_ORDER` in ``mu`` on (0, 1); shape of the
+    part's channels. Differentiable in the part's parameters."""
+    x, w = np.polynomial.legendre.leggauss(FRESNEL_AVERAGE_ORDER)
+    dts = [jnp.asarray(v).dtype for v in jax.tree_util.tree_leaves(fresnel)]
+    dts = [d for d in dts if jnp.issubdtype(d, jnp.floating)]
+    dt = dts[0] if dts else jnp.zeros(()).dtype
+    mu = jnp.asarray(0.5 * (x + 1.0), dt)
+    wmu = jnp.asarray(0.5 * w, dt) * mu
+    channels = jnp.ndim(fresnel(mu[0]))  # 0, or 1 with a trailing channel axis
+    F = fresnel(mu[:, None] if channels else mu)
+    return 2.0 * jnp.tensordot(wmu, F, axes=1)

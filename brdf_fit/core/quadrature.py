@@ -61,6 +61,8 @@ __all__ = [
     "MIRROR_N_U",
     "mirror_lobe_rule",
     "periodic_trapezoid",
+    "AZIMUTHAL_N_PHI",
+    "azimuthal_rule",
 ]
 
 
@@ -216,6 +218,27 @@ def integrate(fn: Callable[[jax.Array], jax.Array], rule: Rule) -> jax.Array:
 
 
 # ------------------------------------------------------------------------------- smooth lobes
+
+
+#: azimuth nodes of :func:`azimuthal_rule` by default: its lobes do not depend on the azimuth
+#: (4 keeps any ``cos(k phi)`` term with ``k < 4`` exact)
+AZIMUTHAL_N_PHI = 4
+
+
+def azimuthal_rule(mu, w_mu, n_phi: int = AZIMUTHAL_N_PHI, dtype=None) -> Rule:
+    """A given rule in ``mu = cos(theta)`` (nodes ``mu``, weights ``w_mu``, NumPy or JAX arrays,
+    possibly traced) times the periodic trapezoid in phi: the rule of a lobe that declares its
+    own ``mu`` nodes (``quadrature_lobe() == ("mu", (mu, w_mu))``, e.g. the tabulated
+    multiple-scattering lobe of :mod:`brdf_fit.models.kulla_conty`). Directions mu-major."""
+    dt = _float_dtype(dtype)
+    mu = jnp.asarray(mu, dt).reshape(-1)
+    w_mu = jnp.asarray(w_mu, dt).reshape(-1)
+    phi, w_phi = periodic_trapezoid(n_phi)
+    phi, w_phi = jnp.asarray(phi, dt), jnp.asarray(w_phi, dt)
+    s = jnp.sqrt(jnp.clip(1.0 - mu * mu, 0.0, None))[:, None]
+    dirs = jnp.stack([s * jnp.cos(phi)[None, :], s * jnp.sin(phi)[None, :],
+                      jnp.broadcast_to(mu[:, None], (mu.size, phi.size))], axis=-1)
+    return Rule(directions=dirs.reshape(-1, 3), weights=(w_mu[:, None] * w_phi[None, :]).ravel())
 
 
 def cosine_rule(n_mu: int = 8, n_phi: int = 4, dtype=None) -> Rule:

@@ -22,7 +22,9 @@ axis (``h`` the node spacing), reported by ``brdf_fit.tables`` for each table it
 
 from __future__ import annotations
 
+import hashlib
 import json
+import os
 from collections.abc import Mapping, Sequence
 
 import equinox as eqx
@@ -30,7 +32,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["Axis", "Table"]
+__all__ = ["Axis", "Table", "load_table"]
+
+#: the descriptor tag and the newest version :func:`load_table` reads (the ``.npz`` layout of
+#: ``brdf_fit.tables.export``, which writes it)
+TABLE_FORMAT = "brdf_fit.table"
+TABLE_FORMAT_VERSION = 1
 
 
 class Axis(eqx.Module):
@@ -150,3 +157,41 @@ class Table(eqx.Module):
                 w = w * (fracs[k] if bit else 1.0 - fracs[k])
             out = out + w[..., None] * values[tuple(idx)]
         return out
+
+
+def load_table(path: str | os.PathLike) -> Table:
+    """Read a table from an ``.npz`` file in the layout ``brdf_fit.tables.export.write_table``
+    writes (its module docstring): one array per channel named after the channel, and
+    ``meta_json``, a 0-d string array holding the descriptor (``axes``, ``channels``, ``meta``,
+    ``dtype``, ``sha256`` of the values as little-endian float64). No pickles are loaded; the
+    values are checked against the recorded ``sha256``.
+
+    This is the reader models use for packaged tables (``brdf_fit/resources/tables``): it lives
+    here, in layer 0, so that a model can load a table without importing ``brdf_fit.tables``
+    (layer 3). ``export.read_table`` reads the same files (and the other formats) to the same
+    :class:`Table` (tested). Raises :class:`ValueError` naming the file when it is not such a
+    table."""
+    where = os.fspath(path)
+    with np.load(path, allow_pickle=False) as z:
+        if "meta_json" not in z.files:
+            raise ValueError(f"{where}: no 'meta_json' array (not a brdf_fit .npz table)")
+        try:
+            d = json.loads(str(z["meta_json"][()]))
+        except json.JSONDecodeError as e:
+            raise ValueError(f"{where}: the descriptor is not valid JSON ({e})") from None
+        if not isinstance(d, dict) or d.get("format") != TABLE_FORMAT:
+            raise ValueError(f"{where}: no {TABLE_FORMAT!r} descriptor in 'meta_json'")
+        if int(d.get("format_version", 0)) > TABLE_FORMAT_VERSION:
+            raise ValueError(f"{where}: format version {d['format_version']} is newer than this "
+                             f"reader's ({TABLE_FORMAT_VERSION})")
+        missing = [c for c in d["channels"] if c not in z.files]
+        if missing:
+            raise ValueError(f"{where}: channel arrays {missing} are missing")
+        values = np.stack([z[c] for c in d["channels"]], axis=-1)
+    if "dtype" in d and values.dtype != np.dtype(d["dtype"]):
+        raise ValueError(f"{where}: arrays are {values.dtype}, the descriptor says {d['dtype']}")
+    digest = hashlib.sha256(np.ascontiguousarray(values, dtype="<f8").tobytes()).hexdigest()
+    if d.get("sha256") and digest != d["sha256"]:
+        raise ValueError(f"{where}: the values do not match the recorded sha256 (file altered?)")
+    axes = [Axis.from_dict(a) for a in d["axes"]]
+    return Table(values, axes, d["channels"], d.get("meta") or {})

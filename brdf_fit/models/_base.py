@@ -77,7 +77,11 @@ class QuadratureLobe(NamedTuple):
     ``kind``: ``"mirror"``: a power-cosine lobe about the mirror direction, ``value`` its exponent
     (:func:`brdf_fit.core.quadrature.mirror_lobe_rule`); ``"half"``: a half-vector lobe of Beckmann
     width ``value``, or ``(width_x, width_y)`` when anisotropic
-    (:func:`brdf_fit.core.quadrature.halfvector_rule`); ``"none"``: nothing declared."""
+    (:func:`brdf_fit.core.quadrature.halfvector_rule`); ``"mu"``: a lobe that depends on ``wi``
+    only through ``mu_i = cos(theta_i)``, ``value = (mu, w)`` its own rule in ``mu`` (nodes in
+    (0, 1] and weights, ``Int_0^1 g(mu) dmu ~ sum w g(mu)``), which quadrature takes times a
+    small trapezoid rule in the azimuth (:func:`brdf_fit.core.quadrature.azimuthal_rule`);
+    ``"none"``: nothing declared."""
 
     kind: str
     value: Any = None

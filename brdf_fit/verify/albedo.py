@@ -21,6 +21,7 @@ from brdf_fit.core.quadrature import (
     HALFVECTOR_N_PHI,
     HALFVECTOR_N_THETA,
     Rule,
+    azimuthal_rule,
     cosine_rule,
     gauss_legendre_hemisphere,
     halfvector_rule,
@@ -81,9 +82,11 @@ def lobe_rule(
     :func:`mirror_lobe_rule` for power-cosine lobes about the mirror direction, the Phong family;
     ``("half", width)``: :func:`halfvector_rule` at that width, e.g. Blinn-Phong's equivalent
     Beckmann width ``sqrt(2/(n+2))``; ``("half", (width_x, width_y))`` for anisotropic
-    lobes), :func:`halfvector_rule` at the lobe's widths for a microfacet lobe, a small
-    :func:`cosine_rule` (exact) for Lambert, the ``generic`` Gauss-Legendre x trapezoid product
-    rule otherwise. Batched ``wo`` gives a batched rule for microfacet lobes only.
+    lobes; ``("mu", (mu, w))``: the lobe's own rule in ``mu`` times :func:`azimuthal_rule`, for
+    lobes that depend on ``wi`` through ``mu_i`` only), :func:`halfvector_rule` at the lobe's
+    widths for a microfacet lobe, a small :func:`cosine_rule` (exact) for Lambert, the
+    ``generic`` Gauss-Legendre x trapezoid product rule otherwise. Batched ``wo`` gives a
+    batched rule for microfacet lobes only.
     ``n_theta=None``: 48 (:data:`HALFVECTOR_N_THETA`), 64 (:data:`GAUSSIAN_N_THETA`) for Beckmann
     and Blinn-Phong lobes."""
     kind, value = lobe.quadrature_lobe()
@@ -93,6 +96,8 @@ def lobe_rule(
         n_theta = GAUSSIAN_N_THETA if n_theta is None else n_theta
         ax, ay = value if isinstance(value, (tuple, list)) else (value, None)
         return halfvector_rule(wo, ax, ay, n_theta=n_theta, n_phi=n_phi, dtype=dtype)
+    if kind == "mu":
+        return azimuthal_rule(*value, dtype=dtype)
     if kind != "none":
         raise ValueError(f"{type(lobe).__name__}.quadrature_lobe() returned unknown kind {kind!r}")
     if isinstance(lobe, MicrofacetBRDF):
@@ -111,7 +116,11 @@ def _rule_sum(lobe, directions, weights, wo):
         dt = jnp.promote_types(weights.dtype, vals.dtype)
     w = weights.astype(dt)
     vals = vals.astype(dt)
-    if vals.ndim > max(w.ndim, directions.ndim - 1):
+    # values carry a channel axis when they have more axes than the broadcast of the nodes and
+    # the views (comparing with the rule's own axes mistook a batch of views integrated by an
+    # unbatched rule, values (n_wo, N), for channels)
+    batch = jnp.broadcast_shapes(directions.shape[:-1], wo.shape[:-1] + (1,))
+    if vals.ndim > len(batch):
         return jnp.sum(w[..., None] * vals, axis=-2)
     return jnp.sum(w * vals, axis=-1)
 
@@ -189,7 +198,9 @@ def directional_albedo(
                               Beckmann and Blinn-Phong)
     ``quadrature_lobe()``     the lobe's own request: ``("mirror", n)`` -> :func:`mirror_lobe_rule`
                               (Phong family, 16384 nodes, <= 15360 weighted), ``("half", width)`` ->
-                              :func:`halfvector_rule` (Blinn-Phong)
+                              :func:`halfvector_rule` (Blinn-Phong), ``("mu", (mu, w))`` -> the
+                              lobe's rule in mu x :func:`azimuthal_rule` (4 azimuths; the
+                              Kulla-Conty lobe: 255 cells x 4 nodes x 4 = 4080 evaluations)
     ``Lambert``               :func:`cosine_rule` (2 x 2, exact)
     ``Mixture``               sum over its lobes; ``Scaled``: ``scale`` times the lobe's albedo
     delta lobes (``Mirror``)  their closed form ``model.albedo(wo)`` (0 evaluations)
