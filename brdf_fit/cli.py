@@ -691,6 +691,9 @@ def cmd_demo(args) -> int:
 
 
 CONVERSIONS = ("phong-to-ggx",)
+#: the radiance error above which a conversion row does not represent its source (the same as
+#: brdf_fit.convert.phong_to_ggx.REPRESENTS_TOL; tests/cli holds them equal)
+REPRESENTS_TOL = 0.1
 
 
 def _print_convert(doc: dict) -> None:
@@ -699,16 +702,24 @@ def _print_convert(doc: dict) -> None:
     print(f"geometry: {doc['geometry']}")
     print(f"closed form: {doc['closed_form']}")
     print(f"{'n':>8} {'n_blinn':>8} {'alpha_fit':>10} {'f0_fit':>7} {'alpha_cf':>9} {'ratio':>6} "
-          f"{'rms':>8} {'rms_cf':>8} {'max_rel':>8} {'err/pk':>7} {'conv':>4} {'N':>5}")
+          f"{'rms':>8} {'rms_cf':>8} {'max_rel':>8} {'err/pk':>7} {'rad_err':>7} {'conv':>4} "
+          f"{'N':>5}")
     for r in doc["rows"]:
         print(f"{r['exponent']:8.4g} {r['blinn_phong_exponent']:8.4g} {r['alpha_fit']:10.5g} "
               f"{r['f0_fit']:7.4f} {r['alpha_closed']:9.5g} {r['ratio']:6.3f} "
               f"{r['residual_rms']:8.4g} {r['closed_rms']:8.4g} {r['max_rel_err']:8.3g} "
-              f"{r['max_err_over_peak']:7.3g} {'yes' if r['converged'] else 'NO':>4} "
+              f"{r['max_err_over_peak']:7.3g} {r['radiance_error']:7.3g} "
+              f"{'yes' if r['converged'] else 'NO':>4} "
               f"{r['n_samples']:5d}")
     print("rms: rms of the metric residual (rms_cf: GGX at alpha_cf and the peak-matched f0); "
           "max_rel: max |m-f|/f where f >= 10% of its maximum; err/pk: max |m-f| / max f; "
-          "ratio: alpha_fit/alpha_cf")
+          "rad_err: relative RMS error of f cos(theta_i); ratio: alpha_fit/alpha_cf")
+    bad = [r for r in doc["rows"] if not r["represents"]]
+    if bad:
+        ns = ", ".join(f"{r['exponent']:g}" for r in bad)
+        print(f"warning: the fitted GGX does not represent {doc['source']} at n = {ns} "
+              f"(radiance error above {REPRESENTS_TOL:g}); use it where the lobe shape matters "
+              "little, or choose a model with brdf-fit select")
 
 
 def cmd_convert(args) -> int:
@@ -726,7 +737,7 @@ def cmd_convert(args) -> int:
         print(json.dumps(doc, indent=2))
     else:
         _print_convert(doc)
-    return 0 if all(r["converged"] for r in doc["rows"]) else 1
+    return 0 if all(r["converged"] and r["represents"] for r in doc["rows"]) else 1
 
 
 def _lut_progress(enabled: bool, label: str):

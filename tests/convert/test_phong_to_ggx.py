@@ -14,6 +14,7 @@ from brdf_fit import registry
 from brdf_fit.cli import main
 from brdf_fit.convert.phong_to_ggx import (
     PEAK_F0,
+    REPRESENTS_TOL,
     ConversionError,
     alpha_from_table,
     geometry,
@@ -97,8 +98,10 @@ def test_geometry_is_the_stated_one():
 
 
 def test_cli_convert_json_is_a_lookup_table(capsys):
+    # exit status 1: the fitted GGX misses the Phong lobe's radiance by ~100% (issue 16,
+    # defect 9: a conversion that does not represent its source says so)
     assert main(["convert", "phong-to-ggx", "--source", "modified-phong", "--exponents", "100",
-                 "--json"]) == 0
+                 "--json"]) == 1
     doc = json.loads(capsys.readouterr().out)
     assert doc["source"] == "modified-phong" and doc["target"] == "ggx"
     assert doc["metric"] == "log" and "hemisphere grid" in doc["geometry"]
@@ -108,6 +111,14 @@ def test_cli_convert_json_is_a_lookup_table(capsys):
     assert row["alpha_closed"] == pytest.approx(math.sqrt(2.0 / 402.0))
     assert 1.0 / FACTOR < row["ratio"] < FACTOR
     assert float(alpha_from_table(doc, 100.0)) == pytest.approx(row["alpha_fit"])
+    assert row["radiance_error"] > REPRESENTS_TOL and not row["represents"]
+    assert doc["error_measures"]["represents"] == f"radiance_error <= {REPRESENTS_TOL:g}"
+
+
+def test_cli_and_library_share_the_representation_tolerance():
+    from brdf_fit import cli
+
+    assert cli.REPRESENTS_TOL == REPRESENTS_TOL
 
 
 def _one_line_error(capsys, *fragments):
