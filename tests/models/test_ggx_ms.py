@@ -191,6 +191,7 @@ def test_gradients_match_finite_differences(alpha):
         np.testing.assert_allclose(np.asarray(g[name]), fd, rtol=2e-5, atol=1e-7)
 
 
+@pytest.mark.slow  # 17 s; the registry's float32 hard-case grid runs by default
 def test_finite_at_hard_cases(dtype=jnp.float32):
     """Values, pdfs and gradients (w.r.t. parameters and both directions) in float32 at grazing
     cosines down to 1e-7, alpha at and below the table's 1e-4, F = 1, and the conductor's hard
