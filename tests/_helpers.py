@@ -228,3 +228,18 @@ def assert_sampling_finite(model, dtype, cos=(1e-7, 0.5, 1.0), phi=0.4,
             assert np.all(np.isfinite(np.asarray(x))), (c, x)
         if failed_weight_zero:
             assert np.all(np.asarray(s.weight)[np.asarray(s.pdf) == 0] == 0), c
+
+
+def cli_one_error(capsys, argv, fragment):
+    """``brdf-fit ARGV`` ends in one ``brdf-fit: error:`` line naming ``fragment``, exit status
+    2, no traceback (argparse's usage errors exit through SystemExit(2))."""
+    from brdf_fit.cli import main
+
+    try:
+        code = main(argv)
+    except SystemExit as e:
+        code = e.code
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert code == 2 and "Traceback" not in err, err
+    assert sum("error:" in ln for ln in lines) == 1 and fragment in lines[-1], err

@@ -32,7 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["Axis", "Table", "load_table"]
+__all__ = ["Axis", "Table", "load_table", "parse_descriptor", "values_sha256"]
 
 #: the descriptor tag and the newest version :func:`load_table` reads (the ``.npz`` layout of
 #: ``brdf_fit.tables.export``, which writes it)
@@ -159,39 +159,56 @@ class Table(eqx.Module):
         return out
 
 
-def load_table(path: str | os.PathLike) -> Table:
+def parse_descriptor(text: str, where: str) -> dict:
+    """The JSON descriptor every table file embeds (``brdf_fit.tables.export``), checked: valid
+    JSON, this format, a version this reader knows. ``where`` names the file in errors."""
+    try:
+        d = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{where}: the brdf_fit metadata is not valid JSON ({e})") from None
+    if not isinstance(d, dict) or d.get("format") != TABLE_FORMAT:
+        raise ValueError(f"{where}: no {TABLE_FORMAT!r} descriptor in the metadata")
+    if int(d.get("format_version", 0)) > TABLE_FORMAT_VERSION:
+        raise ValueError(f"{where}: format version {d['format_version']} is newer than this "
+                         f"reader's ({TABLE_FORMAT_VERSION}); upgrade brdf_fit")
+    return d
+
+
+def values_sha256(values) -> str:
+    """SHA-256 of table values as float64, little-endian, C order (identifies the table, not
+    the file)."""
+    return hashlib.sha256(np.ascontiguousarray(values, dtype="<f8").tobytes()).hexdigest()
+
+
+def load_table(path: str | os.PathLike, descriptor: str | None = None) -> Table:
     """Read a table from an ``.npz`` file in the layout ``brdf_fit.tables.export.write_table``
     writes (its module docstring): one array per channel named after the channel, and
     ``meta_json``, a 0-d string array holding the descriptor (``axes``, ``channels``, ``meta``,
-    ``dtype``, ``sha256`` of the values as little-endian float64). No pickles are loaded; the
-    values are checked against the recorded ``sha256``.
+    ``dtype``, ``sha256`` of the values as little-endian float64); ``descriptor`` (its JSON text,
+    e.g. from a sidecar file) replaces a missing ``meta_json``. No pickles are loaded; the values
+    are checked against the recorded ``sha256``.
 
     This is the reader models use for packaged tables (``brdf_fit/resources/tables``): it lives
     here, in layer 0, so that a model can load a table without importing ``brdf_fit.tables``
-    (layer 3). ``export.read_table`` reads the same files (and the other formats) to the same
-    :class:`Table` (tested). Raises :class:`ValueError` naming the file when it is not such a
-    table."""
+    (layer 3); ``export.read_table`` uses it for ``.npz``. Raises :class:`ValueError` naming the
+    file when it is not such a table."""
     where = os.fspath(path)
     with np.load(path, allow_pickle=False) as z:
-        if "meta_json" not in z.files:
+        if "meta_json" in z.files:
+            descriptor = str(z["meta_json"][()])
+        elif descriptor is None:
             raise ValueError(f"{where}: no 'meta_json' array (not a brdf_fit .npz table)")
-        try:
-            d = json.loads(str(z["meta_json"][()]))
-        except json.JSONDecodeError as e:
-            raise ValueError(f"{where}: the descriptor is not valid JSON ({e})") from None
-        if not isinstance(d, dict) or d.get("format") != TABLE_FORMAT:
-            raise ValueError(f"{where}: no {TABLE_FORMAT!r} descriptor in 'meta_json'")
-        if int(d.get("format_version", 0)) > TABLE_FORMAT_VERSION:
-            raise ValueError(f"{where}: format version {d['format_version']} is newer than this "
-                             f"reader's ({TABLE_FORMAT_VERSION})")
+        d = parse_descriptor(descriptor, where)
         missing = [c for c in d["channels"] if c not in z.files]
         if missing:
             raise ValueError(f"{where}: channel arrays {missing} are missing")
         values = np.stack([z[c] for c in d["channels"]], axis=-1)
     if "dtype" in d and values.dtype != np.dtype(d["dtype"]):
         raise ValueError(f"{where}: arrays are {values.dtype}, the descriptor says {d['dtype']}")
-    digest = hashlib.sha256(np.ascontiguousarray(values, dtype="<f8").tobytes()).hexdigest()
-    if d.get("sha256") and digest != d["sha256"]:
+    if d.get("sha256") and values_sha256(values) != d["sha256"]:
         raise ValueError(f"{where}: the values do not match the recorded sha256 (file altered?)")
     axes = [Axis.from_dict(a) for a in d["axes"]]
+    shape = tuple(a.n for a in axes) + (len(d["channels"]),)
+    if values.shape != shape:
+        raise ValueError(f"{where}: the data have shape {values.shape}, the metadata says {shape}")
     return Table(values, axes, d["channels"], d.get("meta") or {})

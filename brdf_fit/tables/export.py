@@ -66,7 +66,6 @@ are optional: ``pip install 'brdf_fit[tables]'``; they are imported only when ne
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import io
 import json
 import math
@@ -78,14 +77,22 @@ import tempfile
 import numpy as np
 
 from brdf_fit._version import __version__
-from brdf_fit.core.table import Axis, Table
+from brdf_fit.core.table import (
+    TABLE_FORMAT,
+    TABLE_FORMAT_VERSION,
+    Axis,
+    Table,
+    load_table,
+    parse_descriptor,
+    values_sha256,
+)
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "FORMATS", "check_output", "write_table", "read_table",
            "values_sha256", "sidecar_path"]
 
-FORMAT = "brdf_fit.table"
+FORMAT = TABLE_FORMAT
 #: Bump when the layout changes; readers refuse newer versions than they know.
-FORMAT_VERSION = 1
+FORMAT_VERSION = TABLE_FORMAT_VERSION
 #: Known formats, by extension (without the dot).
 FORMATS = ("npz", "exr", "png", "h")
 _EXTRA = "pip install 'brdf_fit[tables]'"
@@ -105,12 +112,6 @@ _C_KEYWORDS = frozenset(
 
 # --------------------------------------------------------------------------------------------
 # shared helpers
-
-
-def values_sha256(values) -> str:
-    """SHA-256 (hex) of ``values`` as float64, little-endian, C order."""
-    a = np.ascontiguousarray(np.asarray(values, dtype="<f8"))
-    return hashlib.sha256(a.tobytes(order="C")).hexdigest()
 
 
 def sidecar_path(path) -> pathlib.Path:
@@ -140,16 +141,7 @@ def _dumps(d: dict) -> str:
 
 
 def _parse_descriptor(text: str, where: str) -> dict:
-    try:
-        d = json.loads(text)
-    except json.JSONDecodeError as e:
-        raise ValueError(f"{where}: the brdf_fit metadata is not valid JSON ({e})") from None
-    if not isinstance(d, dict) or d.get("format") != FORMAT:
-        raise ValueError(f"{where}: no {FORMAT!r} descriptor in the metadata")
-    if int(d.get("format_version", 0)) > FORMAT_VERSION:
-        raise ValueError(f"{where}: format version {d['format_version']} is newer than this "
-                         f"reader's ({FORMAT_VERSION}); upgrade brdf_fit")
-    return d
+    return parse_descriptor(text, where)
 
 
 def _table_from(d: dict, values: np.ndarray, where: str) -> Table:
@@ -409,24 +401,12 @@ def _write_npz(table: Table, values: np.ndarray, path: pathlib.Path) -> list[pat
 
 
 def _read_npz(path: pathlib.Path) -> Table:
-    where = str(path)
+    side = sidecar_path(path)
     with np.load(path, allow_pickle=False) as z:
-        if "meta_json" in z.files:
-            d = _parse_descriptor(str(z["meta_json"][()]), where)
-        elif sidecar_path(path).is_file():
-            d = _parse_descriptor(sidecar_path(path).read_text(encoding="utf-8"), where)
-        else:
-            raise ValueError(f"{where}: no 'meta_json' array and no sidecar "
-                             f"{sidecar_path(path).name}")
-        missing = [c for c in d["channels"] if c not in z.files]
-        if missing:
-            raise ValueError(f"{where}: channel arrays {missing} are missing")
-        values = np.stack([z[c] for c in d["channels"]], axis=-1)
-    if values.dtype != np.dtype(d.get("dtype", values.dtype)):
-        raise ValueError(f"{where}: arrays are {values.dtype}, the metadata says {d['dtype']}")
-    if d.get("sha256") and values_sha256(values) != d["sha256"]:
-        raise ValueError(f"{where}: the values do not match the recorded sha256 (file altered?)")
-    return _table_from(d, values, where)
+        embedded = "meta_json" in z.files
+    if not embedded and not side.is_file():
+        raise ValueError(f"{path}: no 'meta_json' array and no sidecar {side.name}")
+    return load_table(path, None if embedded else side.read_text(encoding="utf-8"))
 
 
 # --------------------------------------------------------------------------------------------

@@ -7,21 +7,10 @@ import json
 
 import numpy as np
 import pytest
+from _helpers import cli_one_error as one_error
 
 from brdf_fit.cli import main
 from brdf_fit.tables import read_table
-
-
-def one_error(capsys, argv, fragment):
-    """One ``brdf-fit: error:`` line naming ``fragment``, exit status 2, no traceback."""
-    try:
-        code = main(argv)
-    except SystemExit as e:  # argparse
-        code = e.code
-    err = capsys.readouterr().err
-    lines = [ln for ln in err.splitlines() if ln.strip()]
-    assert code == 2 and "Traceback" not in err, err
-    assert sum("error:" in ln for ln in lines) == 1 and fragment in lines[-1], err
 
 
 def test_lut_dfg_writes_npz_and_json(tmp_path, capsys):

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 
 import pytest
+from _helpers import cli_one_error as one_error
 
 from brdf_fit.cli import main
 
@@ -14,17 +15,6 @@ RECIPE = {
     "plan": {"name": "in_plane", "args": {"theta_i_deg": [0.0, 30.0],
                                           "theta_o_deg": [0.0, 15.0, 30.0, 45.0, 60.0]}},
 }
-
-
-def one_error(capsys, argv, fragment):
-    try:
-        code = main(argv)
-    except SystemExit as e:  # argparse
-        code = e.code
-    err = capsys.readouterr().err
-    lines = [ln for ln in err.splitlines() if ln.strip()]
-    assert code == 2 and "Traceback" not in err, err
-    assert sum("error:" in ln for ln in lines) == 1 and fragment in lines[-1], err
 
 
 def test_plot_models_writes_lobes_and_hemisphere(tmp_path, capsys):
