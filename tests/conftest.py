@@ -57,6 +57,8 @@ HARD_CASES = ("tests/models/test_hard_cases.py::test_values_and_gradients_are_fi
 SLOW_TESTS = {
     # the same fits as test_batch_equals_single_fits, on two forced host devices (15 s)
     "tests/fitting/test_fit_batch.py::test_sharded_on_two_host_devices",
+    # six entries that tests/fitting/test_fit_recovery.py recovers by default as well (22 s)
+    "tests/fitting/test_fit.py::test_noise_free_recovery",
 }
 
 
