@@ -443,6 +443,10 @@ def cmd_fit(args) -> int:
         if data.n > args.max_samples:
             rng = np.random.default_rng(args.seed)
             data = data.subset(np.sort(rng.choice(data.n, args.max_samples, replace=False)))
+    if not args.quiet:  # one status line: a first fit spends most of its time compiling
+        print(f"fitting {entry.name} to {data.n} samples x {data.n_channels} channels "
+              f"(metric {args.metric}, {args.multistart} start(s)) ...", file=sys.stderr,
+              flush=True)
     result = fit(data, entry.name, fix=fix, init=init, metric=args.metric, solver=args.solver,
                  cos_weight=args.cos_weight, max_zenith_deg=args.max_zenith_deg,
                  multistart=args.multistart, seed=args.seed, max_steps=args.max_steps,
@@ -730,8 +734,17 @@ def cmd_convert(args) -> int:
     _x64()
     from brdf_fit.convert.phong_to_ggx import phong_to_ggx
 
-    result = phong_to_ggx(args.source, exponents=args.exponents, metric=args.metric,
-                          max_zenith_deg=args.max_zenith_deg)
+    bar = _Progress(0, not args.quiet)
+
+    def progress(done: int, total: int, n: float) -> None:
+        if bar.enabled:
+            bar.show(done, done, total, f"fitting GGX to {args.source} n = {n:g}")
+
+    try:
+        result = phong_to_ggx(args.source, exponents=args.exponents, metric=args.metric,
+                              max_zenith_deg=args.max_zenith_deg, progress=progress)
+    finally:
+        bar.close()
     doc = result.to_dict()
     if args.json:
         print(json.dumps(doc, indent=2))
@@ -1127,6 +1140,7 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--check", action="append", metavar="NAME",
                    help="run this check on the fitted model (repeatable)")
     f.add_argument("--json", action="store_true", help="print FitResult.to_dict()")
+    f.add_argument("--quiet", action="store_true", help="no status line on stderr")
     f.set_defaults(func=cmd_fit)
 
     fb = sub.add_parser("fit-batch", help="fit one registry model to many data files at once "
@@ -1164,6 +1178,7 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--json", action="store_true",
                    help="machine-readable; its rows are a small fitted exponent -> alpha table "
                         "(brdf_fit.convert.phong_to_ggx.alpha_from_table)")
+    v.add_argument("--quiet", action="store_true", help="no progress bar")
     v.set_defaults(func=cmd_convert)
 
     se = sub.add_parser("select", help="choose the cheapest model whose radiance error is "

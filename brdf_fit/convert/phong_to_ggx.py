@@ -313,13 +313,19 @@ def phong_to_ggx(
     exponents: Sequence[float] = DEFAULT_EXPONENTS,
     metric: str = "log",
     max_zenith_deg: float = 80.0,
+    progress=None,
 ) -> PhongToGGXResult:
     """Fit GGX (``alpha``, mono ``f0``) to noise-free ``source`` lobes at each exponent and
     compare with the closed form (module docstring). Runs in float64 if x64 is enabled (the CLI
-    enables it); each exponent is one :func:`brdf_fit.fit.fit` call from the closed-form start."""
+    enables it); each exponent is one :func:`brdf_fit.fit.fit` call from the closed-form start.
+    ``progress(done, total, exponent)`` is called before each exponent."""
     source = _source_name(source)
     ex = _validate(exponents, metric, max_zenith_deg)
-    rows = [_one(source, n, metric, float(max_zenith_deg)) for n in ex]
+    rows = []
+    for k, n in enumerate(ex):
+        if progress is not None:
+            progress(k, len(ex), n)
+        rows.append(_one(source, n, metric, float(max_zenith_deg)))
     via = ("phong_to_blinn_phong_exponent (n_b = 4 n), then blinn_phong_to_ggx_alpha"
            if SOURCES[source] == "phong" else "blinn_phong_to_ggx_alpha")
     return PhongToGGXResult(

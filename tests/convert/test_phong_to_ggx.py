@@ -102,7 +102,9 @@ def test_cli_convert_json_is_a_lookup_table(capsys):
     # defect 9: a conversion that does not represent its source says so)
     assert main(["convert", "phong-to-ggx", "--source", "modified-phong", "--exponents", "100",
                  "--json"]) == 1
-    doc = json.loads(capsys.readouterr().out)
+    captured = capsys.readouterr()
+    doc = json.loads(captured.out)
+    assert "0/1 fitting GGX to modified-phong n = 100" in captured.err  # the progress bar
     assert doc["source"] == "modified-phong" and doc["target"] == "ggx"
     assert doc["metric"] == "log" and "hemisphere grid" in doc["geometry"]
     assert doc["max_zenith_deg"] == 80.0
