@@ -57,6 +57,7 @@ __all__ = [
     "rgb_nk",
     "rgb_nk_fit_error",
     "conductor_fresnel",
+    "R_CLIP",
 ]
 
 #: Integration grid of :func:`spectrum_to_rgb`: 1 nm steps over the range where both the CIE 1931
@@ -73,6 +74,13 @@ _CHECK_POINTS = 257
 #: least-squares optimum is then at infinity (F = 1 everywhere) and the box keeps the parameters
 #: finite and usable in float32 (``conductor`` is accurate there up to k = 100 and beyond).
 _NK_MIN, _NK_MAX = 1e-3, 1e2
+#: Out-of-gamut channels (linear-sRGB reflectance above 1 somewhere, gold's red: 1.037 at normal
+#: incidence) are clipped to this reflectance before the fit, so that the fit ends at a real
+#: conductor inside the box (gold's red: F(1) = R_CLIP with finite eta, k) instead of at the box
+#: corner (eta = 1e-3, k = 100: F = 1 - 5e-7 at every angle, issue 16). 0.995 is the largest
+#: normal reflectance among the tabulated metals' in-gamut channels (silver's red, 0.989) plus
+#: a margin; a channel clipped here reports its excess in :func:`rgb_nk_fit_error`.
+R_CLIP = 0.995
 
 
 #: One compiled kernel per input shape instead of op-by-op dispatch (much faster to warm up).
@@ -321,6 +329,9 @@ def _rgb_nk_cached(name: str):
     cos = np.concatenate([cos, [1.0]])  # include normal incidence so F(1) is matched tightly
     weights = np.concatenate([weights, [np.max(weights)]])
     target = reflectance_rgb(name, cos)
+    dense = reflectance_rgb(name, np.linspace(0.0, 1.0, _CHECK_POINTS))
+    out_of_gamut = dense.max(axis=0) > 1.0
+    target = np.where(out_of_gamut, np.minimum(target, R_CLIP), target)
     eta, k = np.empty(3), np.empty(3)
     with _x64():
         cos64 = jnp.asarray(cos, dtype=jnp.float64)
@@ -346,10 +357,11 @@ def rgb_nk(name: str):
     (edge tint g = 0, 0.025, ..., 1). Results are cached per material.
 
     Both parameters are kept in [1e-3, 100] (projected steps). A conductor reflects at most 1, so
-    a channel whose linear-sRGB reflectance exceeds 1 (out of the sRGB gamut; gold's red channel
-    at near-normal incidence) cannot be matched: its fit ends at the box with F close to 1 at all
-    angles, i.e. the channel is effectively clipped to 1, and :func:`rgb_nk_fit_error` reports
-    the excess for that channel.
+    a channel whose linear-sRGB reflectance exceeds 1 anywhere (out of the sRGB gamut; gold's red
+    channel, 1.037 at normal incidence) cannot be matched: its target is clipped to
+    :data:`R_CLIP` = 0.995 before the fit (so gold's red is a real conductor, F(1) = 0.995 with
+    finite eta and k, not the box corner F = 1 everywhere), and :func:`rgb_nk_fit_error` reports
+    the difference to the unclipped curve (gold: 0.042).
     """
     eta, k = _rgb_nk_cached(name)
     return eta.copy(), k.copy()

@@ -149,8 +149,8 @@ def test_conductor_ms_adds_energy_within_bounds():
         assert np.all(e_ms > e_ss)
         # the added energy is F_ms (1 - E) <= F_avg (1 - E); the total stays below 1
         assert np.all(e_ms - e_ss <= f_avg * (1.0 - white[:, None]) + 1e-4)
-        # F is 1 - 5e-7 in gold's red channel (rgb_nk clips it): the table's interpolation
-        # error (<= 1.9e-5) may show there, within the energy check's tolerance
+        # gold's red channel reflects up to 0.996 (F(1) = R_CLIP, rgb_nk): the table's
+        # interpolation error (<= 1.9e-5) may show there, within the energy check's tolerance
         assert np.all(e_ms <= 1.0 + ENERGY_TOL)
 
 
