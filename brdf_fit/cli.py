@@ -667,6 +667,18 @@ def _print_demo(doc: dict) -> None:
                if c["kind"] == "phong" else "")
         print(f"  {c['model']}: {kind} n = {c['exponent']:.4g}{via} -> GGX alpha = "
               f"{c['ggx_alpha']:.4g} (closed form, peak match: brdf_fit.convert.phong.{c['via']})")
+    sel = doc.get("selection")
+    if sel:
+        print("\nModel selection (brdf_fit.select; error: relative RMS of f cos(theta_i), each "
+              "model refitted in it; cost measured here):")
+        for c in sel["candidates"]:
+            if c["message"]:
+                print(f"  {c['model']:<{w}} no fit: {c['message']}")
+                continue
+            mark = "  <- choice" if c["model"] == sel["choice"] else ""
+            print(f"  {c['model']:<{w}} error {c['error']:8.4f}  {c['cost_ns']:7.2f} ns/eval  "
+                  f"{'in' if c['within_budget'] else 'out'} budget{mark}")
+        print(f"  budget {sel['budget']:.4g} ({sel['budget_rule']})")
     print(f"\nChecks on the best model ({doc['best']}):")
     for c in doc["checks"]:
         stat = "-" if c["statistic"] is None else f"{c['statistic']:.4g}"
@@ -865,6 +877,9 @@ def cmd_select(args) -> int:
     print(f"  {'model':<{w}} {'error':>8} {'ns/eval':>8} {'k':>3} {'AIC':>10} {'BIC':>10} "
           f"{'chi2/dof':>9} {'conv':>5}  budget pareto checks")
     for c in sel.candidates:
+        if c.message:
+            print(f"  {c.model:<{w}} no fit: {c.message}")
+            continue
         chi2 = "-" if c.reduced_chi2 is None else f"{c.reduced_chi2:.3g}"
         checks_txt = ",".join(f"{k}:{v}" for k, v in c.checks.items()) or "-"
         mark = "<- choice" if c.model == sel.choice else ""

@@ -19,6 +19,7 @@ import numpy as np
 from brdf_fit import plot, registry
 from brdf_fit.convert import phong as cp
 from brdf_fit.fitting.single import fit
+from brdf_fit.selection import select
 from brdf_fit.verify.checks import run_checks
 from data_synth.recipes import synthesize
 
@@ -40,9 +41,8 @@ DEMO_RECIPE = {
                       "max_zenith_deg": 80.0, "min_separation_deg": 5.0}},
     "noise": [{"type": "lognormal", "args": {"sigma": 0.01}}],
 }
-#: The models the demo fits, with their start values. ggx-conductor starts from a neutral metal:
-#: the registry's gold default has its red channel at the parameter bounds (eta = 0.001,
-#: k = 100), where F ~ 1 and the gradients with respect to eta and k vanish.
+#: The models the demo fits, with their start values. ggx-conductor starts from a neutral metal
+#: (not from the truth, the registry's gold default), so the fit has something to find.
 DEMO_FITS = (
     ("ggx-conductor", {"alpha": 0.4, "eta": [1.0, 1.0, 1.0], "k": [3.0, 3.0, 3.0]}),
     ("ggx", {}),
@@ -74,7 +74,7 @@ def _demo_conversions(results: dict) -> list[dict]:
     return out
 
 
-def _demo_plots(data, ranked, out_dir) -> tuple[list[str], str | None]:
+def _demo_plots(data, ranked, out_dir, selection=None) -> tuple[list[str], str | None]:
     models = [(r.model_name, r.model) for r in ranked]
     files = []
     truth = ", ".join(f"{k}={v}" for k, v in DEMO_RECIPE["params"].items())
@@ -86,6 +86,9 @@ def _demo_plots(data, ranked, out_dir) -> tuple[list[str], str | None]:
             data, models, title=f"log residuals per model (metric {DEMO_METRIC}); dashed: "
                                 "+-1 median sigma"),
     }
+    if selection is not None:
+        figs["demo_selection.png"] = plot.selection_front(
+            selection, title="model selection: radiance error against measured cost")
     for name, fig in figs.items():
         path = out_dir / name
         fig.savefig(path, dpi=110)
@@ -116,6 +119,10 @@ def run_demo(out_dir, plots: bool = True, progress: bool = True) -> dict:
              f"{'converged' if r.converged else 'NOT converged'}, {r.seconds:.1f} s")
     ranked = sorted(results.values(), key=lambda r: r.residual_rms)
     best = ranked[0]
+    # which model renders this material within budget at the least cost (brdf_fit.select:
+    # each candidate refitted in the relative radiance error, its cost measured here)
+    sel = select(data, [name for name, _ in DEMO_FITS], checks=())
+    note(f"selection: {sel.choice} (budget {sel.budget:.3g}, {sel.budget_rule})")
     checks = run_checks(best.model, checks=list(DEMO_CHECKS), name=best.model_name,
                         expected_failures=registry.get(best.model_name).expected_failures)
     best.checks = checks
@@ -138,6 +145,7 @@ def run_demo(out_dir, plots: bool = True, progress: bool = True) -> dict:
         "ggx_alpha": {n: float(np.asarray(results[n].params["alpha"]))
                       for n in ("ggx-conductor", "ggx", "beckmann") if n in results},
         "checks": [c.to_dict() for c in checks],
+        "selection": sel.to_dict(),
         "plots": [],
         "plot_note": "plots disabled" if not plots else None,
         "seconds": 0.0,
@@ -152,7 +160,7 @@ def run_demo(out_dir, plots: bool = True, progress: bool = True) -> dict:
     write()  # the results are on disk before any plot is attempted
     if plots:
         try:
-            doc["plots"], doc["plot_note"] = _demo_plots(data, ranked, out_dir)
+            doc["plots"], doc["plot_note"] = _demo_plots(data, ranked, out_dir, sel)
         except Exception as e:  # a failing plot never loses the computed results
             doc["plot_note"] = f"plots failed ({type(e).__name__}: {e}); demo.json is complete"
         if doc["plots"]:

@@ -301,7 +301,7 @@ def selection_front(selection, title: str | None = None):
     ringed (log-log)."""
     fig = _figure(6.0, 4.2)
     ax = fig.subplots()
-    cands = selection.candidates
+    cands = [c for c in selection.candidates if not c.message]  # failed fits have no point
     for c in cands:
         colour = "tab:green" if c.within_budget else "tab:red"
         ax.loglog(c.cost_ns, max(c.error, 1e-12), "o", color=colour)

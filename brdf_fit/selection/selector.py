@@ -46,7 +46,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from brdf_fit import registry
+from brdf_fit.core.validate import ParameterError
 from brdf_fit.data import GonioData
+from brdf_fit.fitting.problem import FitError
 from brdf_fit.fitting.single import fit, json_floats
 
 __all__ = ["COST_PAIRS", "COST_ROUNDS", "DEFAULT_CANDIDATES", "ERROR_DEFINITION", "Candidate",
@@ -128,6 +130,11 @@ def measure_cost(model, n: int = COST_PAIRS, rounds: int = COST_ROUNDS) -> float
     return best / n * 1e9
 
 
+def _num(x):
+    """A float for strict JSON: NaN and inf (a candidate without a fit) as None."""
+    return float(x) if math.isfinite(x) else None
+
+
 @dataclasses.dataclass
 class Candidate:
     """One fitted candidate (see :func:`select`)."""
@@ -146,6 +153,9 @@ class Candidate:
     within_budget: bool = False
     pareto: bool = False
     seconds: float = 0.0
+    #: why the candidate has no fit ("" when it has one): e.g. a fit whose optimum breaks a
+    #: joint constraint of the model (modified Phong's rho_d + rho_s <= 1)
+    message: str = ""
     fitted: object = None  # the fitted model object (not serialised)
 
     def to_dict(self) -> dict:
@@ -157,11 +167,12 @@ class Candidate:
             "model": self.model,
             "params": {k: tolist(v) for k, v in self.params.items()},
             "stderr": {k: json_floats(v) for k, v in self.stderr.items()},
-            "error": self.error, "cost_ns": round(self.cost_ns, 3), "n_params": self.n_params,
-            "aic": self.aic, "bic": self.bic, "within_budget": self.within_budget,
+            "error": _num(self.error), "cost_ns": _num(round(self.cost_ns, 3)),
+            "n_params": self.n_params, "aic": _num(self.aic), "bic": _num(self.bic),
+            "within_budget": self.within_budget,
             "pareto": self.pareto, "converged": self.converged,
             "reduced_chi2": self.reduced_chi2, "checks": self.checks,
-            "seconds": round(self.seconds, 3),
+            "seconds": round(self.seconds, 3), "message": self.message,
         }
 
 
@@ -197,10 +208,13 @@ class Selection:
 
 def _pareto(cands: list[Candidate]) -> None:
     for c in cands:
+        if c.message:
+            c.pareto = False
+            continue
         c.pareto = not any(
             (o.cost_ns <= c.cost_ns and o.error <= c.error)
             and (o.cost_ns < c.cost_ns or o.error < c.error)
-            for o in cands if o is not c)
+            for o in cands if o is not c and not o.message)
 
 
 def select(data: GonioData, candidates: Sequence[str] | None = None, budget: float | None = None,
@@ -228,8 +242,15 @@ def select(data: GonioData, candidates: Sequence[str] | None = None, budget: flo
         if progress is not None:
             progress(i, len(entries), e.name)
         t0 = time.perf_counter()
-        r = fit(plain, e.name, metric="absolute", cos_weight=True, max_steps=max_steps,
-                multistart=multistart, seed=seed)
+        try:
+            r = fit(plain, e.name, metric="absolute", cos_weight=True, max_steps=max_steps,
+                    multistart=multistart, seed=seed)
+        except (ParameterError, FitError) as exc:  # one candidate's failure loses no other
+            out.append(Candidate(
+                model=e.name, params={}, stderr={}, error=float("inf"), cost_ns=float("nan"),
+                n_params=0, aic=float("nan"), bic=float("nan"), converged=False,
+                seconds=time.perf_counter() - t0, message=f"{type(exc).__name__}: {exc}"))
+            continue
         m = np.asarray(r.model.eval(jnp.asarray(data.wi), jnp.asarray(data.wo)))
         err = radiance_error(data, m)
         k = int(sum(np.asarray(v).size for v in r.params.values()))
@@ -259,7 +280,10 @@ def select(data: GonioData, candidates: Sequence[str] | None = None, budget: flo
     if progress is not None:
         progress(len(entries), len(entries), "done")
     noise = noise_level(data)
-    best = min(c.error for c in out)
+    if all(c.message for c in out):
+        raise FitError("no candidate could be fitted: " + "; ".join(
+            f"{c.model}: {c.message}" for c in out))
+    best = min(c.error for c in out if not c.message)
     if budget is None:
         budget = BUDGET_FACTOR_BEST * best
         rule = f"default: {BUDGET_FACTOR_BEST:g} x the best candidate's error ({best:.4g})"
@@ -272,7 +296,8 @@ def select(data: GonioData, candidates: Sequence[str] | None = None, budget: flo
     for c in out:
         c.within_budget = bool(c.error <= budget)
     _pareto(out)
-    out.sort(key=lambda c: (c.cost_ns, c.n_params, c.error))
+    out.sort(key=lambda c: (bool(c.message), c.cost_ns if not c.message else 0.0, c.n_params,
+                            c.error))
     ok = [c for c in out if c.within_budget]
     choice = min(ok, key=lambda c: (c.cost_ns, c.n_params, c.error)).model if ok else None
     return Selection(choice=choice, budget=float(budget), budget_rule=rule,

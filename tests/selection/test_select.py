@@ -97,3 +97,17 @@ def test_bad_select_requests(tmp_path, capsys, argv, fragment):
         code = e.code
     err = capsys.readouterr().err
     assert code == 2 and fragment in err and "Traceback" not in err
+
+
+def test_a_candidate_that_cannot_be_fitted_loses_no_other():
+    """modified-phong fitted to gold in the radiance error ends at rho_d + rho_s > 1, which the
+    model refuses: the candidate is reported with its reason, the others are selected."""
+    from brdf_fit import demo
+
+    d = synthesize(demo.DEMO_RECIPE)
+    s = select(d, ["ggx", "modified-phong"], checks=())
+    bad = s.candidate("modified-phong")
+    assert "rho_d + rho_s" in bad.message and not bad.within_budget and not bad.pareto
+    assert s.choice == "ggx" and s.candidates[-1].model == "modified-phong"
+    doc = json.loads(json.dumps(s.to_dict(), allow_nan=False))  # strict JSON
+    assert doc["candidates"][1]["message"] and doc["candidates"][1]["error"] is None
