@@ -45,6 +45,7 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
+from brdf_fit.core.validate import ParameterError
 from brdf_fit.data import GonioData
 from brdf_fit.fitting import guess as _guess
 from brdf_fit.fitting.problem import (
@@ -345,7 +346,16 @@ def fit(
         stderr = layout.split(se)
     converged = bool(ok) and not (codes == 3).any()
     notes = {k: v for k, v in layout.split(stderr_notes(codes)).items() if (v != "").any()}
-    fitted = source.build({k: jnp.asarray(v) for k, v in params.items()})
+    try:
+        fitted = source.build({k: jnp.asarray(v) for k, v in params.items()})
+    except ParameterError as exc:
+        # the optimum breaks a joint constraint the per-parameter intervals do not express
+        # (modified Phong's rho_d + rho_s <= 1): the solver never sees it (tracers are not
+        # validated), the concrete model refuses it; say so instead of a bare ParameterError
+        shown = ", ".join(f"{k}={np.round(np.asarray(v), 4).tolist()}" for k, v in params.items())
+        raise FitError(f"{source.name}: the fitted parameters ({shown}) break a constraint of "
+                       f"the model ({exc}); fix a parameter (--fix), start elsewhere or fit "
+                       "another metric") from None
     result = FitResult(
         model_name=source.name,
         model=fitted,
