@@ -746,12 +746,8 @@ def cmd_convert(args) -> int:
     _x64()
     from brdf_fit.convert.phong_to_ggx import phong_to_ggx
 
-    bar = _Progress(0, not args.quiet)
-
-    def progress(done: int, total: int, n: float) -> None:
-        if bar.enabled:
-            bar.show(done, done, total, f"fitting GGX to {args.source} n = {n:g}")
-
+    bar, progress = _progress_callback(not args.quiet,
+                                       lambda n: f"fitting GGX to {args.source} n = {n:g}")
     try:
         result = phong_to_ggx(args.source, exponents=args.exponents, metric=args.metric,
                               max_zenith_deg=args.max_zenith_deg, progress=progress)
@@ -765,12 +761,14 @@ def cmd_convert(args) -> int:
     return 0 if all(r["converged"] and r["represents"] for r in doc["rows"]) else 1
 
 
-def _lut_progress(enabled: bool, label: str):
+def _progress_callback(enabled: bool, label):
+    """A status bar and the ``progress(done, total, *extra)`` callback the library calls;
+    ``label`` is the text, or a function of the callback's extra arguments (e.g. the model)."""
     bar = _Progress(0, enabled)
 
-    def progress(done: int, total: int) -> None:
+    def progress(done: int, total: int, *extra) -> None:
         if bar.enabled:
-            bar.show(done, done, total, label)
+            bar.show(done, done, total, label(*extra) if callable(label) else label)
 
     return bar, progress
 
@@ -847,12 +845,7 @@ def cmd_select(args) -> int:
     _x64()
     from brdf_fit.selection import select
 
-    bar = _Progress(0, not args.quiet)
-
-    def progress(done: int, total: int, name: str) -> None:
-        if bar.enabled:
-            bar.show(done, done, total, f"fitting {name}")
-
+    bar, progress = _progress_callback(not args.quiet, lambda name: f"fitting {name}")
     try:
         sel = select(data, names, args.budget, checks=() if args.no_checks else checks,
                      progress=progress)
@@ -952,7 +945,7 @@ def _lut_albedo(args) -> int:
     total = 1
     for spec in axes.values():
         total *= spec if isinstance(spec, int) else spec[0]
-    bar, progress = _lut_progress(not args.quiet, f"{args.table} {args.model} ({total} nodes)")
+    bar, progress = _progress_callback(not args.quiet, f"{args.table} {args.model} ({total} nodes)")
     t0 = time.perf_counter()
     try:
         if args.table == "albedo":
@@ -1031,7 +1024,7 @@ def cmd_lut(args) -> int:
     layout = resolve_layout(args.layout)
     if channels is not None:
         layout = dataclasses.replace(layout, channels=channels)
-    bar, progress = _lut_progress(not args.quiet, f"dfg {args.size}x{args.size} texels")
+    bar, progress = _progress_callback(not args.quiet, f"dfg {args.size}x{args.size} texels")
     t0 = time.perf_counter()
     table = dfg_table(args.size, args.masking, layout=layout, progress=progress)
     bar.close()
