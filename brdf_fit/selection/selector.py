@@ -80,14 +80,22 @@ def _radiance(data: GonioData):
     return w, c
 
 
+def _as_values(data: GonioData, model_values) -> np.ndarray:
+    m = np.asarray(model_values, dtype=np.float64)
+    return np.broadcast_to(m[:, None] if m.ndim == 1 else m, data.value.shape)
+
+
+def _radiance_sums(data: GonioData, m) -> tuple[float, float]:
+    """``(sum w (m - f)^2 cos_i^2, sum w f^2 cos_i^2)``: the squared residual radiance (the RSS
+    of the selection fit) and its normaliser."""
+    w, c = _radiance(data)
+    return (float(np.sum(w * ((m - data.value) * c) ** 2)),
+            float(np.sum(w * (data.value * c) ** 2)))
+
+
 def radiance_error(data: GonioData, model_values) -> float:
     """:data:`ERROR_DEFINITION` of model values ``(N, C)`` (or ``(N,)``) against ``data``."""
-    m = np.asarray(model_values, dtype=np.float64)
-    m = m[:, None] if m.ndim == 1 else m
-    m = np.broadcast_to(m, data.value.shape)
-    w, c = _radiance(data)
-    num = np.sum(w * ((m - data.value) * c) ** 2)
-    den = np.sum(w * (data.value * c) ** 2)
+    num, den = _radiance_sums(data, _as_values(data, model_values))
     return float(math.sqrt(num / den)) if den > 0 else float("inf")
 
 
@@ -251,19 +259,17 @@ def select(data: GonioData, candidates: Sequence[str] | None = None, budget: flo
                 n_params=0, aic=float("nan"), bic=float("nan"), converged=False,
                 seconds=time.perf_counter() - t0, message=f"{type(exc).__name__}: {exc}"))
             continue
-        m = np.asarray(r.model.eval(jnp.asarray(data.wi), jnp.asarray(data.wo)))
-        err = radiance_error(data, m)
+        m = _as_values(data, r.model.eval(jnp.asarray(data.wi), jnp.asarray(data.wo)))
+        rss, den = _radiance_sums(data, m)
+        err = float(math.sqrt(rss / den)) if den > 0 else float("inf")
         k = int(sum(np.asarray(v).size for v in r.params.values()))
-        rss = max((err ** 2) * float(np.sum(_radiance(data)[0] * (data.value *
-                                                                   _radiance(data)[1]) ** 2)),
-                  1e-300)
+        rss = max(rss, 1e-300)
         aic = n_res * math.log(rss / n_res) + 2 * k
         bic = n_res * math.log(rss / n_res) + k * math.log(n_res)
         chi2 = None
         if data.sigma is not None:
-            mm = np.broadcast_to(m[:, None] if m.ndim == 1 else m, data.value.shape)
             w = _radiance(data)[0] > 0
-            z = (mm - data.value)[w] / np.maximum(data.sigma[w], 1e-300)
+            z = (m - data.value)[w] / np.maximum(data.sigma[w], 1e-300)
             chi2 = float(np.sum(z * z) / max(z.size - k, 1))
         status = {}
         if checks:
