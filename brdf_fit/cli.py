@@ -12,7 +12,7 @@
     brdf-fit fit-batch DATA... --model NAME [--fix ...] [--init ...] [--metric ...]
                  [--guess grid|none] [--skip-bad] [--out FILE.csv|.json] [--json] [--quiet]
     brdf-fit demo [--out DIR] [--json]
-    brdf-fit select DATA [--candidates A,B,..] [--budget X] [--plot PNG] [--json]
+    brdf-fit select DATA [--candidates A,B,..|--family NAME] [--budget X] [--plot PNG] [--json]
     brdf-fit plot MODEL [MODEL ...] [--param NAME=VALUE] [--data FILE [--fit]] -o PNG
     brdf-fit lut dfg -o FILE [--size N] [--masking M] [--layout NAME] [--channels A,B] [--json]
     brdf-fit lut albedo|eavg MODEL --axis NAME=N[:LO:HI] ... [--param NAME=VALUE] -o FILE
@@ -835,6 +835,15 @@ def cmd_select(args) -> int:
         check_output_file(args.plot, (".png", ".pdf", ".svg"), "--plot")
     reg = _registry()
     names = None
+    if args.candidates is not None and args.family is not None:
+        raise CLIError("give --candidates or --family, not both")
+    if args.family is not None:
+        from brdf_fit.selection import family_candidates
+
+        try:
+            names = list(family_candidates(args.family))
+        except ValueError as exc:
+            raise CLIError(f"--family: {exc}") from None
     if args.candidates is not None:
         names = [c.strip() for c in args.candidates.split(",") if c.strip()]
         if not names:
@@ -1196,6 +1205,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="registry names (default: lambert, oren-nayar, modified-phong, "
                          "blinn-phong, ward, beckmann, ggx, ggx-plastic, ggx-conductor, "
                          "cook-torrance)")
+    se.add_argument("--family", default=None, metavar="NAME",
+                    help="a named candidate set instead: diffuse, phong, microfacet, plastic, "
+                         "conductor, anisotropic, default, or all (every fittable entry)")
     se.add_argument("--budget", type=float, default=None,
                     help="largest relative RMS radiance error (0.02 = 2%%; default: twice the "
                          "best candidate's error, at least 1.5x the noise level with sigma)")

@@ -78,10 +78,19 @@ def _demo_plots(data, ranked, out_dir, selection=None) -> tuple[list[str], str |
     models = [(r.model_name, r.model) for r in ranked]
     files = []
     truth = ", ".join(f"{k}={v}" for k, v in DEMO_RECIPE["params"].items())
+    # next to each model's chi-square fit (solid), its best approximation in the selection's
+    # radiance error (dashed; none where that fit failed)
+    paired = None
+    if selection is not None:
+        by_name = {c.model: c for c in selection.candidates}
+        paired = [(f"{n} (radiance fit)", by_name[n].fitted)
+                  if n in by_name and by_name[n].fitted is not None else None
+                  for n, _ in models]
     figs = {
         "demo_slices.png": plot.in_plane_slices(
-            data, models, DEMO_SLICES_DEG,
-            title=f"{DEMO_RECIPE['model']} ({truth}), 1% noise: measured vs fitted, in plane"),
+            data, models, DEMO_SLICES_DEG, paired=paired,
+            title=f"{DEMO_RECIPE['model']} ({truth}), 1% noise: solid, fitted in the log "
+                  "chi-square; dashed, in the radiance error"),
         "demo_residuals.png": plot.residuals(
             data, models, title=f"log residuals per model (metric {DEMO_METRIC}); dashed: "
                                 "+-1 median sigma"),

@@ -93,10 +93,12 @@ def in_plane_slices(
     phi_i_deg: float = 0.0,
     n_curve: int = 361,
     title: str | None = None,
+    paired: Sequence[tuple[str, object] | None] | None = None,
 ):
     """Measured BRDF (points) against each model (curves) in the plane of incidence, one panel
     per incidence angle, log scale; ``channel`` is a name or an index (default: G of RGB data,
-    else the first)."""
+    else the first). ``paired``: a second fit of each model (same order, ``None`` where there is
+    none), drawn dashed in its model's colour, e.g. the same model fitted in another error."""
     c = _channel(data, channel)
     fig = _figure(4.0 * len(theta_i_deg), 3.6)
     axes = fig.subplots(1, len(theta_i_deg), squeeze=False)[0]
@@ -104,10 +106,15 @@ def in_plane_slices(
     pairs = [_sweep(ti, sweep, phi_i_deg) for ti in theta_i_deg]
     wi_all = np.concatenate([p[0] for p in pairs])
     wo_all = np.concatenate([p[1] for p in pairs])
-    curves = []
-    for _, model in models:  # one evaluation per model over every panel's sweep
+    if paired is not None and len(paired) != len(models):
+        raise ValueError(f"paired: {len(paired)} entries for {len(models)} models")
+
+    def curve(model):  # one evaluation per model over every panel's sweep
         f = _eval(model, wi_all, wo_all)
-        curves.append(f[:, min(c, f.shape[1] - 1)].reshape(len(theta_i_deg), n_curve))
+        return f[:, min(c, f.shape[1] - 1)].reshape(len(theta_i_deg), n_curve)
+
+    curves = [curve(model) for _, model in models]
+    seconds = [None if p is None else curve(p[1]) for p in (paired or [None] * len(models))]
     for k, (ax, ti) in enumerate(zip(axes, theta_i_deg, strict=True)):
         th, idx = in_plane_samples(data, ti, phi_i_deg)
         v = data.value[idx, c]
@@ -117,7 +124,11 @@ def in_plane_slices(
             f = curves[j][k]
             ok = f > 0
             # the first model (the best, in a ranked list) drawn wider, so it shows beneath
-            ax.semilogy(sweep[ok], f[ok], "-", lw=2.6 if j == 0 else 1.2, label=label)
+            (line,) = ax.semilogy(sweep[ok], f[ok], "-", lw=2.6 if j == 0 else 1.2, label=label)
+            if seconds[j] is not None:
+                g = seconds[j][k]
+                ax.semilogy(sweep[g > 0], g[g > 0], "--", lw=1.2, color=line.get_color(),
+                            label=paired[j][0])
         if pos.any():  # keep the axis on the measurements, not on a model's far tail
             ax.set_ylim(v[pos].min() / 10.0, v[pos].max() * 3.0)
         ax.axvline(ti, color="0.7", lw=0.8, ls=":")

@@ -9,12 +9,14 @@ shadowed by the function of the same name re-exported here).
 from brdf_fit.selection.selector import (
     DEFAULT_CANDIDATES,
     ERROR_DEFINITION,
+    FAMILIES,
     Candidate,
     Selection,
+    family_candidates,
     measure_cost,
     radiance_error,
     select,
 )
 
-__all__ = ["DEFAULT_CANDIDATES", "ERROR_DEFINITION", "Candidate", "Selection", "measure_cost",
-           "radiance_error", "select"]
+__all__ = ["DEFAULT_CANDIDATES", "ERROR_DEFINITION", "FAMILIES", "Candidate", "Selection",
+           "family_candidates", "measure_cost", "radiance_error", "select"]

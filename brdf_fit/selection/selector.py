@@ -51,8 +51,9 @@ from brdf_fit.data import GonioData
 from brdf_fit.fitting.problem import FitError
 from brdf_fit.fitting.single import fit, json_floats
 
-__all__ = ["COST_PAIRS", "COST_ROUNDS", "DEFAULT_CANDIDATES", "ERROR_DEFINITION", "Candidate",
-           "Selection", "measure_cost", "radiance_error", "select"]
+__all__ = ["COST_PAIRS", "COST_ROUNDS", "DEFAULT_CANDIDATES", "ERROR_DEFINITION", "FAMILIES",
+           "Candidate", "Selection", "family_candidates", "measure_cost", "radiance_error",
+           "select"]
 
 ERROR_DEFINITION = (
     "relative RMS error of the reflected radiance f cos(theta_i) over the data's samples and "
@@ -64,6 +65,41 @@ DEFAULT_CANDIDATES = (
     "lambert", "oren-nayar", "modified-phong", "blinn-phong", "ward", "beckmann", "ggx",
     "ggx-plastic", "ggx-conductor", "cook-torrance",
 )
+
+#: named candidate families (``select(..., family=NAME)``, ``brdf-fit select --family NAME``):
+#: the registry entries that answer one question each. ``"all"`` is every registry entry that
+#: can be fitted (not a delta lobe): 40-odd fits, minutes, for when the question is open.
+FAMILIES = {
+    "default": DEFAULT_CANDIDATES,
+    # a matte surface: how much retro-reflection and darkening at grazing does it need?
+    "diffuse": ("lambert", "oren-nayar", "oren-nayar-qualitative", "minnaert", "lewis"),
+    # the Phong catalogue, as old renderers and MTL files carry it
+    "phong": ("modified-phong", "modified-phong-fresnel", "blinn-phong", "blinn-phong-approx",
+              "phong-energy-normalized", "blinn-phong-microfacet"),
+    # isotropic microfacet specular lobes: which NDF, which masking, single or multiple scattering
+    "microfacet": ("beckmann", "beckmann-walter", "ggx", "ggx-separable", "ggx-ms",
+                   "ggx-ms-turquin", "cook-torrance", "cook-torrance-1982"),
+    # diffuse base plus a specular coat: summed, coupled or layered
+    "plastic": ("ggx-plastic", "torrance-sparrow", "ashikhmin-shirley", "kelemen",
+                "granier-heidrich", "ward"),
+    # metals: exact conductor Fresnel, single and multiple scattering
+    "conductor": ("ggx-conductor", "ggx-conductor-ms", "ggx", "cook-torrance"),
+    # brushed surfaces: two widths
+    "anisotropic": ("ggx-aniso", "beckmann-aniso", "ward", "ashikhmin-shirley", "lafortune",
+                    "ggx-conductor-aniso"),
+}
+
+
+def family_candidates(family: str) -> tuple[str, ...]:
+    """The registry names of a named family (:data:`FAMILIES`; ``"all"``: every non-delta
+    entry). An unknown family is a ``ValueError`` that lists the known ones."""
+    if family == "all":
+        return tuple(e.name for e in registry.entries() if "delta" not in e.tags)
+    if family not in FAMILIES:
+        raise ValueError(f"unknown family {family!r}; known: "
+                         + ", ".join([*FAMILIES, "all"]))
+    return FAMILIES[family]
+
 
 #: direction pairs per timed call of :func:`measure_cost` and timed calls per candidate
 COST_PAIRS = 16384
@@ -226,15 +262,22 @@ def _pareto(cands: list[Candidate]) -> None:
 
 
 def select(data: GonioData, candidates: Sequence[str] | None = None, budget: float | None = None,
-           *, checks: Sequence[str] = ("reciprocity", "energy"), max_steps: int = 256,
-           multistart: int = 1, seed: int = 0,
+           *, family: str | None = None, checks: Sequence[str] = ("reciprocity", "energy"),
+           max_steps: int = 256, multistart: int = 1, seed: int = 0,
            progress: Callable[[int, int, str], None] | None = None) -> Selection:
     """Fit each candidate (registry names; default :data:`DEFAULT_CANDIDATES`) to ``data`` in
     the radiance error, measure its cost, and choose the cheapest within ``budget`` (module
-    docstring). ``checks``: registry checks run on each fitted model (their status per check;
-    ``()`` skips them). ``progress(done, total, model)`` is called before each candidate."""
+    docstring). ``family``: a named set of candidates instead (:data:`FAMILIES`, or ``"all"``;
+    not together with ``candidates``). ``checks``: registry checks run on each fitted model
+    (their status per check; ``()`` skips them). ``progress(done, total, model)`` is called
+    before each candidate."""
     t_start = time.perf_counter()
-    names = list(DEFAULT_CANDIDATES if candidates is None else candidates)
+    if family is not None and candidates is not None:
+        raise ValueError("give candidates or a family, not both")
+    if family is not None:
+        names = list(family_candidates(family))
+    else:
+        names = list(DEFAULT_CANDIDATES if candidates is None else candidates)
     if not names:
         raise ValueError("give at least one candidate")
     entries = [registry.get(n) for n in names]  # unknown names fail before any fit

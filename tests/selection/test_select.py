@@ -88,6 +88,8 @@ def test_cli_select_json_and_plot(tmp_path, capsys):
     (["--budget", "-1"], "--budget"),
     (["--check", "bogus"], "unknown check"),
     (["--plot", "x.txt"], "--plot"),
+    (["--family", "shiny"], "unknown family 'shiny'"),
+    (["--family", "diffuse", "--candidates", "ggx"], "not both"),
 ])
 def test_bad_select_requests(tmp_path, capsys, argv, fragment):
     argv = [a if a != "x.txt" else str(tmp_path / a) for a in argv]
@@ -99,15 +101,66 @@ def test_bad_select_requests(tmp_path, capsys, argv, fragment):
     assert code == 2 and fragment in err and "Traceback" not in err
 
 
-def test_a_candidate_that_cannot_be_fitted_loses_no_other():
-    """modified-phong fitted to gold in the radiance error ends at rho_d + rho_s > 1, which the
-    model refuses: the candidate is reported with its reason, the others are selected."""
+@pytest.fixture(scope="module")
+def demo_selection():
+    """select over the demo's models on the demo's data (gold, GGX alpha 0.2, 1% noise)."""
     from brdf_fit import demo
 
     d = synthesize(demo.DEMO_RECIPE)
-    s = select(d, ["ggx", "modified-phong"], checks=())
+    return d, select(d, [name for name, _ in demo.DEMO_FITS], checks=())
+
+
+def test_a_candidate_that_cannot_be_fitted_loses_no_other(demo_selection):
+    """modified-phong fitted to gold in the radiance error ends at rho_d + rho_s > 1, which the
+    model refuses: the candidate is reported with its reason, the others are selected."""
+    _, s = demo_selection
     bad = s.candidate("modified-phong")
     assert "rho_d + rho_s" in bad.message and not bad.within_budget and not bad.pareto
-    assert s.choice == "ggx" and s.candidates[-1].model == "modified-phong"
+    # ggx and ggx-conductor are both within the budget and their measured costs are close
+    # (17 and 19 ns): which is cheaper in this run depends on the load of the machine
+    assert s.choice in ("ggx", "ggx-conductor") and s.candidates[-1].model == "modified-phong"
     doc = json.loads(json.dumps(s.to_dict(), allow_nan=False))  # strict JSON
-    assert doc["candidates"][1]["message"] and doc["candidates"][1]["error"] is None
+    assert doc["candidates"][-1]["message"] and doc["candidates"][-1]["error"] is None
+
+
+def test_each_candidate_error_is_no_worse_than_eight_multistarts(demo_selection):
+    """Issue 18: every candidate's reported error is no worse than the best of 8 multistarts of
+    that model in the same error (a fit in the radiance error from 8 random starts, seeded
+    differently from select's). Measured: equal to 1e-14 for ggx-conductor, ggx, beckmann and
+    blinn-phong-approx; modified-phong fails the same way from every start."""
+    import dataclasses
+
+    import jax.numpy as jnp
+
+    from brdf_fit.fitting.problem import FitError
+    from brdf_fit.fitting.single import fit
+
+    d, s = demo_selection
+    plain = dataclasses.replace(d, sigma=None)
+    for c in s.candidates:
+        try:
+            r = fit(plain, c.model, metric="absolute", cos_weight=True, multistart=8, seed=1)
+        except FitError as exc:
+            assert c.message and "rho_d + rho_s" in str(exc), c.model
+            continue
+        best8 = radiance_error(d, r.model.eval(jnp.asarray(d.wi), jnp.asarray(d.wo)))
+        assert c.error <= best8 * (1 + 1e-9), (c.model, c.error, best8)
+
+
+def test_families_name_registry_entries_and_select_takes_one():
+    from brdf_fit import registry
+    from brdf_fit.selection import FAMILIES, family_candidates
+
+    for fam, names in FAMILIES.items():
+        assert names == family_candidates(fam)
+        assert all(registry.get(n).name == n for n in names), fam  # canonical names only
+    every = family_candidates("all")
+    assert "mirror" not in every and "ggx" in every and len(every) == len(set(every))
+    with pytest.raises(ValueError, match="unknown family"):
+        family_candidates("shiny")
+    with pytest.raises(ValueError, match="not both"):
+        select(dataset("lambert"), ["lambert"], family="diffuse")
+    s = select(dataset("lambert"), family="diffuse", checks=())
+    assert [c.model for c in s.candidates if c.message] == []
+    assert {c.model for c in s.candidates} == set(FAMILIES["diffuse"])
+    assert s.choice in DIFFUSE | {"minnaert", "lewis", "oren-nayar-qualitative"}
