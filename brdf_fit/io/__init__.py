@@ -1,4 +1,6 @@
-"""Measured-data formats: gonioreflectometer CSV, MERL binary, npz with a JSON sidecar.
+"""Measured-data formats: gonioreflectometer CSV, MERL binary, npz with a JSON sidecar; and the
+Wavefront MTL material reader (:mod:`brdf_fit.io.mtl`: materials, not GonioData, so not in
+:func:`read`).
 
 Every reader returns validated :class:`~brdf_fit.data.GonioData` (BRDF in 1/sr, unit vectors in
 the local frame) and raises :class:`~brdf_fit.data.DataError` naming the file and the problem.
@@ -13,10 +15,12 @@ import pathlib
 from brdf_fit.data import DataError, GonioData
 from brdf_fit.io.csv import read_csv, write_csv
 from brdf_fit.io.merl import merl_lookup, read_merl, read_merl_table, write_merl
+from brdf_fit.io.mtl import MtlError, MtlMaterial, MtlReadResult, parse_mtl, read_mtl
 from brdf_fit.io.npz import read_npz, write_npz
 
 __all__ = ["read", "write", "read_csv", "write_csv", "read_merl", "read_merl_table",
-           "merl_lookup", "write_merl", "read_npz", "write_npz", "READ_FORMATS", "WRITE_FORMATS"]
+           "merl_lookup", "write_merl", "read_npz", "write_npz", "READ_FORMATS", "WRITE_FORMATS",
+           "read_mtl", "parse_mtl", "MtlError", "MtlMaterial", "MtlReadResult"]
 
 #: extension -> reader; ``.json`` is the sidecar of an ``.npz`` file
 READ_FORMATS = {".csv": read_csv, ".npz": read_npz, ".json": read_npz, ".binary": read_merl}
