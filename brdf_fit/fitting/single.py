@@ -227,6 +227,56 @@ def _arrays(data: GonioData, max_zenith_deg, dtype):
             jnp.asarray(f, dtype), jnp.asarray(w, dtype), sigma, floor), int(keep.sum())
 
 
+@dataclasses.dataclass(frozen=True)
+class _Jitted:
+    """The compiled functions of one static problem (:func:`_compiled`); each takes the fixed
+    parameter values as its last argument, so problems that differ only in them share it."""
+
+    run: Callable
+    loss: Callable
+    per_channel: Callable
+    residuals_phys: Callable
+    jacobian: Callable
+
+
+_JITTED: dict = {}
+#: compiled problems kept (oldest dropped first); a select over ten candidates uses ten
+MAX_JITTED = 64
+
+
+def _compiled(problem: FitProblem, n_channels: int, solver, rtol, atol, max_steps) -> _Jitted:
+    """The jitted solver, loss, start-design loss, residuals and Jacobian of ``problem``,
+    shared by every :func:`fit` of the same static problem (``problem.key``: model source,
+    layout, metric, cos_weight; the names and shapes of the fixed values; the options). A
+    fresh ``jax.jit`` per call, as before, traced and compiled anew each time even for
+    the same model and data shape: 1-5 s per fit, most of a warm ``select``."""
+    fixed_sig = tuple(sorted((k, tuple(np.shape(v)), str(jnp.asarray(v).dtype))
+                             for k, v in problem.fixed.items()))
+    key = (problem.key, fixed_sig, int(n_channels), solver, float(rtol), float(atol),
+           int(max_steps))
+    got = _JITTED.get(key)
+    if got is not None:
+        return got
+    template = problem.with_fixed({})
+
+    def P(fx):
+        return template.with_fixed(fx)
+
+    C = int(n_channels)
+    got = _Jitted(
+        run=jax.jit(lambda u, a, fx: solve(P(fx), u, a, solver, rtol, atol, max_steps)),
+        loss=jax.jit(lambda u, a, fx: 0.5 * jnp.sum(P(fx).residuals(u, a) ** 2)),
+        per_channel=jax.jit(jax.vmap(lambda u, a, fx: 0.5 * jnp.sum(
+            P(fx).residuals(u, a).reshape(-1, C) ** 2, axis=0), in_axes=(0, None, None))),
+        residuals_phys=jax.jit(lambda x, a, fx: P(fx).residuals_phys(x, a)),
+        jacobian=jax.jit(lambda x, a, fx: jax.jacfwd(P(fx).residuals_phys)(x, a)),
+    )
+    if len(_JITTED) >= MAX_JITTED:
+        _JITTED.pop(next(iter(_JITTED)))
+    _JITTED[key] = got
+    return got
+
+
 def fit(
     data: GonioData,
     model,
@@ -296,16 +346,21 @@ def fit(
     )
     layout = problem.layout
     u0 = layout.inverse(start)
-    run = jax.jit(lambda u, a: solve(problem, u, a, solver, rtol, atol, max_steps))
-    loss_fn = jax.jit(lambda u, a: 0.5 * jnp.sum(problem.residuals(u, a) ** 2))
+    jitted = _compiled(problem, C, solver, rtol, atol, max_steps)
+    fx = problem.fixed
+
+    def run(u, a):
+        return jitted.run(u, a, fx)
+
+    def loss_fn(u, a):
+        return jitted.loss(u, a, fx)
+
     vary = tuple(n for n in free if n not in init) if guess == "grid" else ()
     if vary:
         cands = _guess.design(problem, u0, vary, defaults)
         sub = _guess.subsample(n_used)
         sub_arrays = tuple(a[sub] if isinstance(a, jax.Array) else a for a in arrays)
-        per_channel = jax.jit(jax.vmap(lambda u, a: 0.5 * jnp.sum(
-            problem.residuals(u, a).reshape(-1, C) ** 2, axis=0), in_axes=(0, None)))
-        losses = np.asarray(per_channel(jnp.asarray(cands, dtype), sub_arrays))
+        losses = np.asarray(jitted.per_channel(jnp.asarray(cands, dtype), sub_arrays, fx))
         u0 = np.asarray(_guess.pick(np, cands, losses, _guess.layout(problem, vary),
                                     _guess.channel_index(problem, C)))
     rng = np.random.default_rng(seed)
@@ -322,13 +377,13 @@ def fit(
     flat_phys = layout.join(phys)
 
     # jitted: eagerly, each of the ~90 operations compiles on its own (3-5 s per fit, measured)
-    r = np.asarray(jax.jit(problem.residuals_phys)(flat_phys, arrays))
+    r = np.asarray(jitted.residuals_phys(flat_phys, arrays, fx))
     m_eff = int(np.sum(np.asarray(arrays[3]).reshape(-1) > 0))
     p = int(flat_phys.shape[0])
     stderr, codes = {}, np.zeros(p, int)
     params = {k: np.asarray(v) for k, v in phys.items()}
     if p:
-        J = np.asarray(jax.jit(jax.jacfwd(problem.residuals_phys))(flat_phys, arrays))
+        J = np.asarray(jitted.jacobian(flat_phys, arrays, fx))
         finite = bool(np.all(np.isfinite(J)) and np.all(np.isfinite(r)))
         # J^T J of finite J may still overflow: stderr_codes tests the product itself
         with np.errstate(over="ignore"):
