@@ -37,6 +37,7 @@ bench: $(STAMP)         ## re-run the committed benchmarks (results in benchmark
 	$(BIN)/python benchmarks/bench_phong_normaliser.py
 	$(BIN)/python benchmarks/bench_catalogue_cost.py
 	$(BIN)/python benchmarks/bench_fit_batch.py
+	$(BIN)/python benchmarks/bench_select.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache

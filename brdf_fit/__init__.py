@@ -19,19 +19,21 @@ _MICROFACET = ("GGX", "Beckmann", "BlinnPhongNDF", "SmithHeightCorrelated", "Smi
                "VCavity")
 _PARAMS = ("Entry", "Param")
 _DATA = ("DataError", "GonioData")
-_IO = ("read", "write")
+_IO = ("read", "write", "read_mtl")
 _SINGLE = ("fit", "FitResult")
 _PROBLEM = ("FitError", "FitProblem", "ParamLayout")
 _BATCH = ("fit_batch", "BatchFitResult")
 _CHECKS = ("run_checks", "CheckResult")
 _ROUGHNESS = ("alpha_to_roughness", "roughness_to_alpha")
 _SELECTION = ("select", "Selection")
+_SCENE = ("load_scene", "select_scene")
+_EXPORT = ("to_gltf", "to_mitsuba", "mtl_to_ggx")
 _TABLES = ("dfg_table", "read_table", "write_table", "Table")
 _MODULES = ("registry", "fresnel", "microfacet", "spectra")
 
 __all__ = sorted(
     (*_MODELS, *_FRESNEL, *_MICROFACET, *_PARAMS, *_DATA, *_IO, *_SINGLE, *_PROBLEM, *_BATCH,
-     *_CHECKS, *_ROUGHNESS, *_SELECTION, *_TABLES, *_MODULES, "ParameterError",
+     *_CHECKS, *_ROUGHNESS, *_SELECTION, *_SCENE, *_EXPORT, *_TABLES, *_MODULES, "ParameterError",
      "conductor_fresnel", "directional_albedo",
      "__version__")
 )
@@ -70,6 +72,14 @@ def __getattr__(name: str):
         from brdf_fit.convert import roughness as module
     elif name in _SELECTION:
         from brdf_fit.selection import selector as module
+    elif name in _SCENE:
+        from brdf_fit.selection import scene as module
+    elif name == "to_gltf":
+        from brdf_fit.convert import gltf as module
+    elif name == "to_mitsuba":
+        from brdf_fit.convert import mitsuba as module
+    elif name == "mtl_to_ggx":
+        from brdf_fit.convert import mtl as module
     elif name in _TABLES:
         import brdf_fit.tables as module
     else:

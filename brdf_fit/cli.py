@@ -706,7 +706,7 @@ def cmd_demo(args) -> int:
     return 0 if all(c["status"] != "FAIL" for c in doc["checks"]) else 1
 
 
-CONVERSIONS = ("phong-to-ggx",)
+CONVERSIONS = ("phong-to-ggx", "mtl-to-ggx")
 #: the radiance error above which a conversion row does not represent its source (the same as
 #: brdf_fit.convert.phong_to_ggx.REPRESENTS_TOL; tests/cli holds them equal)
 REPRESENTS_TOL = 0.1
@@ -743,6 +743,10 @@ def cmd_convert(args) -> int:
     if args.conversion not in CONVERSIONS:
         raise CLIError(f"unknown conversion {args.conversion!r}; valid conversions: "
                        f"{', '.join(CONVERSIONS)}")
+    if args.conversion == "mtl-to-ggx":
+        return _convert_mtl(args)
+    if args.file is not None:
+        raise CLIError(f"{args.conversion} takes no FILE (mtl-to-ggx does)")
     _x64()
     from brdf_fit.convert.phong_to_ggx import phong_to_ggx
 
@@ -759,6 +763,50 @@ def cmd_convert(args) -> int:
     else:
         _print_convert(doc)
     return 0 if all(r["converged"] and r["represents"] for r in doc["rows"]) else 1
+
+
+def _convert_mtl(args) -> int:
+    """``convert mtl-to-ggx FILE.mtl``: every material as GGX (:func:`brdf_fit.mtl_to_ggx`)."""
+    if args.file is None:
+        raise CLIError("mtl-to-ggx needs an MTL FILE: brdf-fit convert mtl-to-ggx scene.mtl")
+    from brdf_fit.io.mtl import MtlError, read_mtl
+
+    try:
+        mats = read_mtl(args.file)
+    except MtlError as exc:
+        raise CLIError(str(exc)) from None
+    _x64()
+    from brdf_fit.convert.mtl import mtl_to_ggx
+
+    bar, progress = _progress_callback(not args.quiet, lambda n: f"converting {n}")
+    rows = []
+    try:
+        for i, m in enumerate(mats):
+            progress(i, len(mats), m.name)
+            rows.append(mtl_to_ggx(m, max_zenith_deg=args.max_zenith_deg))
+        progress(len(mats), len(mats), "done")
+    finally:
+        bar.close()
+    if args.json:
+        print(json.dumps({"file": args.file, "materials": [r.to_dict() for r in rows]},
+                         indent=2, allow_nan=False))
+        return 0
+    w = max(len(r.name) for r in rows)
+    print(f"{args.file}: {len(rows)} materials; error: relative RMS radiance error of the GGX "
+          "material against the MTL material's meaning (brdf_fit.convert.mtl)")
+    print(f"  {'material':<{w}} {'source':<22} {'target':<12} {'alpha':>7} {'rough':>6} "
+          f"{'error':>7} {'closed a':>8} {'closed err':>10}")
+    for r in rows:
+        a = r.params.get("alpha")
+        a_txt = "-" if a is None else f"{float(np.asarray(a)):.4g}"
+        rg = "-" if r.roughness is None else f"{r.roughness:.3g}"
+        ac = "-" if r.alpha_closed is None else f"{r.alpha_closed:.4g}"
+        ec = "-" if r.error_closed is None else f"{r.error_closed:.3g}"
+        print(f"  {r.name:<{w}} {r.source:<22} {r.target:<12} {a_txt:>7} {rg:>6} "
+              f"{r.error:7.3g} {ac:>8} {ec:>10}")
+        for n in r.notes:
+            print(f"  {'':<{w}}   note: {n}")
+    return 0
 
 
 def _progress_callback(enabled: bool, label):
@@ -833,6 +881,13 @@ def cmd_select(args) -> int:
         raise CLIError(f"--budget must be a positive number (0.02 = 2%), got {args.budget}")
     if args.plot is not None:
         check_output_file(args.plot, (".png", ".pdf", ".svg"), "--plot")
+    if (args.scene is None) == (args.data is None):
+        raise CLIError("select needs a DATA file or --scene TOML (one of them)")
+    if args.scene is None:
+        for flag, v in (("--max-models", args.max_models), ("--gltf", args.gltf),
+                        ("--mitsuba", args.mitsuba), ("--skip-bad", args.skip_bad or None)):
+            if v is not None:
+                raise CLIError(f"{flag} needs --scene")
     reg = _registry()
     names = None
     if args.candidates is not None and args.family is not None:
@@ -850,6 +905,8 @@ def cmd_select(args) -> int:
             raise CLIError("--candidates: give at least one model name")
         names = [reg.get(n).name for n in names]  # unknown names fail before any work
     checks = _check_names(args.check) if args.check else ("reciprocity", "energy")
+    if args.scene is not None:
+        return _select_scene(args, names, checks)
     data = read_data(args.data)
     _x64()
     from brdf_fit.selection import select
@@ -898,6 +955,66 @@ def cmd_select(args) -> int:
     if args.plot is not None:
         print(f"wrote {args.plot}")
     return 0 if sel.choice is not None else 1
+
+
+def _select_scene(args, names, checks) -> int:
+    """``select --scene``: every material's choice, the model set, the exports."""
+    if args.max_models is not None and args.max_models < 1:
+        raise CLIError(f"--max-models must be an integer >= 1, got {args.max_models}")
+    if args.gltf is not None:
+        check_output_file(args.gltf, (".gltf",), "--gltf")
+    if args.mitsuba is not None:
+        check_output_file(args.mitsuba, (".xml",), "--mitsuba")
+    _x64()
+    from brdf_fit.selection import scene as sc
+
+    if args.scene == "example":
+        args.scene = str(sc.EXAMPLE_SCENE)
+    try:
+        scene = sc.load_scene(args.scene, skip_bad=args.skip_bad)
+    except sc.SceneError as exc:
+        raise CLIError(str(exc)) from None
+    bar, progress = _progress_callback(not args.quiet, lambda what: f"fitting {what}")
+    try:
+        res = sc.select_scene(scene, names, args.budget, family=None,
+                              max_models=args.max_models, skip_bad=args.skip_bad,
+                              checks=() if args.no_checks or not args.check else checks,
+                              progress=progress)
+    except sc.SceneError as exc:
+        raise CLIError(str(exc)) from None
+    finally:
+        bar.close()
+    written = sc.export_scene(res, gltf_path=args.gltf, mitsuba_path=args.mitsuba)
+    doc = res.to_dict()
+    if args.plot is not None:
+        from brdf_fit.plot import scene_front
+
+        scene_front(res, title=args.scene).savefig(args.plot, dpi=110)
+        written.append(args.plot)
+    doc["written"] = written
+    if args.json:
+        print(json.dumps(doc, indent=2, allow_nan=False))
+        return 0 if not res.scene.bad else 1
+    print(f"{args.scene}: {len(res.materials)} materials ({res.seconds:.1f} s)")
+    w = max(len(c.material.name) for c in res.materials)
+    wm = max(len(c.model) for c in res.materials)
+    print(f"  {'material':<{w}} {'kind':<5} {'model':<{wm}} {'error':>8} {'budget':>8} "
+          f"{'ns/eval':>8}  exports")
+    for c in res.materials:
+        ex = ", ".join(f"{k} {v['method']} {v['error']:.2g}" if "method" in v
+                       else f"{k} failed" for k, v in c.exports.items()) or "-"
+        print(f"  {c.material.name:<{w}} {c.material.kind:<5} {c.model:<{wm}} {c.error:8.4f} "
+              f"{c.selection.budget:8.4f} {c.cost_ns:8.2f}  {ex}")
+        for n in c.material.notes:
+            print(f"  {'':<{w}}   note: {n}")
+    print(f"model set ({res.set_rule}): {', '.join(res.model_set)}: {len(res.model_set)} "
+          f"kernel(s), {res.cost_ns_total:.3g} ns per evaluation in all, worst error "
+          f"{res.worst_error:.4g}")
+    for b in res.scene.bad:
+        print(f"skipped: {b['error']}")
+    for path in written:
+        print(f"wrote {path}")
+    return 0 if not res.scene.bad else 1
 
 
 LUT_TABLES = ("dfg", "albedo", "eavg")
@@ -1183,7 +1300,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     v = sub.add_parser("convert", help="fit one model to another's lobes (phong-to-ggx) and "
                                        "compare with the closed-form conversion")
-    v.add_argument("conversion", help="phong-to-ggx")
+    v.add_argument("conversion", help="phong-to-ggx, or mtl-to-ggx FILE.mtl (every material of "
+                                      "a Wavefront MTL file fitted as GGX)")
+    v.add_argument("file", nargs="?", default=None, help="the MTL file of mtl-to-ggx")
     v.add_argument("--source", default="modified-phong",
                    help="modified-phong (default, rho_d = 0), blinn-phong, blinn-phong-approx, "
                         "blinn-phong-microfacet (control: differs from GGX in D only)")
@@ -1200,7 +1319,21 @@ def build_parser() -> argparse.ArgumentParser:
 
     se = sub.add_parser("select", help="choose the cheapest model whose radiance error is "
                                        "within a budget")
-    se.add_argument("data", help="measured data (.csv, .npz, .binary)")
+    se.add_argument("data", nargs="?", default=None,
+                    help="measured data (.csv, .npz, .binary); or --scene")
+    se.add_argument("--scene", default=None, metavar="TOML",
+                    help="a scene file: materials given as data files, MTL, glTF or registry "
+                         "models (brdf_fit.selection.scene); prints the choice per material and "
+                         "the model set; 'example' is the embedded example scene")
+    se.add_argument("--max-models", type=int, default=None, metavar="K",
+                    help="with --scene: at most K models for the whole scene (the set that "
+                         "minimises the worst error)")
+    se.add_argument("--gltf", default=None, metavar="OUT.gltf",
+                    help="with --scene: write the chosen materials as glTF 2.0 materials")
+    se.add_argument("--mitsuba", default=None, metavar="OUT.xml",
+                    help="with --scene: write the chosen materials as Mitsuba 3 bsdfs")
+    se.add_argument("--skip-bad", action="store_true",
+                    help="with --scene: list bad materials and select the others")
     se.add_argument("--candidates", default=None, metavar="A,B,...",
                     help="registry names (default: lambert, oren-nayar, modified-phong, "
                          "blinn-phong, ward, beckmann, ggx, ggx-plastic, ggx-conductor, "
@@ -1210,7 +1343,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "conductor, anisotropic, default, or all (every fittable entry)")
     se.add_argument("--budget", type=float, default=None,
                     help="largest relative RMS radiance error (0.02 = 2%%; default: twice the "
-                         "best candidate's error, at least 1.5x the noise level with sigma)")
+                         "best candidate's error, at least 1.5x the noise level with sigma, "
+                         "at least 0.01)")
     se.add_argument("--check", action="append", metavar="NAME",
                     help="checks run on each fitted candidate (default: reciprocity, energy)")
     se.add_argument("--no-checks", action="store_true", help="run no checks")

@@ -334,3 +334,39 @@ def selection_front(selection, title: str | None = None):
     if title:
         ax.set_title(title, fontsize=9)
     return fig
+
+
+def scene_front(result, title: str | None = None):
+    """A scene's selection (:class:`brdf_fit.selection.scene.SceneSelection`): one row per
+    material, the radiance error of every fitted candidate (dots, by measured cost, left to
+    right), the material's budget (tick) and the scene's choice (ringed); the model set in the
+    title line. Errors below 1e-4 (a formula material fitted by itself: 1e-16) are drawn at
+    1e-4."""
+    mats = result.materials
+    fig = _figure(7.5, 0.9 + 0.42 * len(mats))
+    ax = fig.subplots()
+    floor = 1e-4
+    models = sorted({c.model for m in mats for c in m.selection.candidates if not c.message},
+                    key=lambda n: (result.costs.get(n, math.inf), n))
+    colours = {n: f"C{i % 10}" for i, n in enumerate(models)}
+    for row, m in enumerate(mats):
+        for c in m.selection.candidates:
+            if c.message:
+                continue
+            ax.semilogx(max(c.error, floor), row, "o", ms=5, color=colours[c.model], alpha=0.8)
+        ax.plot([m.selection.budget] * 2, [row - 0.35, row + 0.35], "k-", lw=1.0)
+        ax.semilogx(max(m.error, floor), row, "o", ms=12, mfc="none", color="k")
+    for n in models:
+        cost = result.costs.get(n, math.nan)
+        ax.plot([], [], "o", color=colours[n], label=f"{n} ({cost:.3g} ns)")
+    ax.plot([], [], "o", ms=10, mfc="none", color="k", label="scene's choice")
+    ax.plot([], [], "k|", ms=10, mew=1.0, ls="none", label="budget")
+    ax.set_yticks(range(len(mats)), [m.material.name for m in mats], fontsize=8)
+    ax.invert_yaxis()
+    ax.set_xlabel("relative RMS radiance error (below 1e-4 drawn at 1e-4)")
+    ax.grid(True, which="both", axis="x", lw=0.3)
+    ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5))
+    head = (f"model set: {', '.join(result.model_set)} ({result.cost_ns_total:.3g} ns in all, "
+            f"worst error {result.worst_error:.3g})")
+    ax.set_title(head if not title else f"{title}\n{head}", fontsize=9)
+    return fig

@@ -29,9 +29,11 @@ machine; only ratios between candidates mean anything elsewhere.
 
 **The choice**: the cheapest candidate whose error is within the budget (ties: fewer parameters,
 then the lower error); ``None`` when none is. Without a budget the default is stated in the
-result: twice the error of the best candidate, and at least 1.5 times the noise level when the
+result: twice the error of the best candidate, at least 1.5 times the noise level when the
 data carry sigma (``sqrt(sum w sigma^2 cos_i^2 / sum w f^2 cos_i^2)``, the error a perfect model
-would show). The Pareto front (no other candidate both cheaper and more accurate) is reported.
+would show), and at least :data:`BUDGET_FLOOR` (1%): noise-free samples of a formula (a scene's
+MTL or glTF material) would otherwise get a budget of 2e-16, which only the formula itself
+meets. The Pareto front (no other candidate both cheaper and more accurate) is reported.
 """
 
 from __future__ import annotations
@@ -108,6 +110,8 @@ COST_ROUNDS = 7
 BUDGET_FACTOR_BEST = 2.0
 #: ... and at least this many times the noise level (data with sigma)
 BUDGET_FACTOR_NOISE = 1.5
+#: ... and at least this error (a 1% RMS radiance difference: the floor for noise-free samples)
+BUDGET_FLOOR = 0.01
 
 
 def _radiance(data: GonioData):
@@ -264,13 +268,16 @@ def _pareto(cands: list[Candidate]) -> None:
 def select(data: GonioData, candidates: Sequence[str] | None = None, budget: float | None = None,
            *, family: str | None = None, checks: Sequence[str] = ("reciprocity", "energy"),
            max_steps: int = 256, multistart: int = 1, seed: int = 0,
+           costs: dict[str, float] | None = None,
            progress: Callable[[int, int, str], None] | None = None) -> Selection:
     """Fit each candidate (registry names; default :data:`DEFAULT_CANDIDATES`) to ``data`` in
     the radiance error, measure its cost, and choose the cheapest within ``budget`` (module
     docstring). ``family``: a named set of candidates instead (:data:`FAMILIES`, or ``"all"``;
     not together with ``candidates``). ``checks``: registry checks run on each fitted model
-    (their status per check; ``()`` skips them). ``progress(done, total, model)`` is called
-    before each candidate."""
+    (their status per check; ``()`` skips them). ``costs``: a dict of measured costs (ns per
+    evaluation) by model name, shared between calls: a model found there is not measured again,
+    a model measured here is added (a scene measures each kernel once). ``progress(done, total,
+    model)`` is called before each candidate."""
     t_start = time.perf_counter()
     if family is not None and candidates is not None:
         raise ValueError("give candidates or a family, not both")
@@ -321,9 +328,15 @@ def select(data: GonioData, candidates: Sequence[str] | None = None, budget: flo
             for c in run_checks(e.name, params={p: np.asarray(v) for p, v in r.params.items()},
                                 checks=checks):
                 status[c.check] = c.status
+        if costs is not None and e.name in costs:
+            cost = costs[e.name]
+        else:
+            cost = measure_cost(r.model)
+            if costs is not None:
+                costs[e.name] = cost
         out.append(Candidate(
             model=e.name, params=r.params, stderr=r.stderr, error=err,
-            cost_ns=measure_cost(r.model), n_params=k, aic=aic, bic=bic,
+            cost_ns=cost, n_params=k, aic=aic, bic=bic,
             converged=bool(r.converged), reduced_chi2=chi2, checks=status,
             seconds=time.perf_counter() - t0, fitted=r.model))
     if progress is not None:
@@ -340,6 +353,11 @@ def select(data: GonioData, candidates: Sequence[str] | None = None, budget: flo
             budget = BUDGET_FACTOR_NOISE * noise
             rule = (f"default: {BUDGET_FACTOR_NOISE:g} x the noise level ({noise:.4g}), above "
                     f"{BUDGET_FACTOR_BEST:g} x the best error ({best:.4g})")
+        if BUDGET_FLOOR > budget:
+            budget = BUDGET_FLOOR
+            rule = (f"default: the floor {BUDGET_FLOOR:g}, above {BUDGET_FACTOR_BEST:g} x the "
+                    f"best error ({best:.4g})" + ("" if noise is None else
+                                                  f" and {BUDGET_FACTOR_NOISE:g} x the noise"))
     else:
         rule = "given"
     for c in out:

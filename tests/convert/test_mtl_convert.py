@@ -220,3 +220,27 @@ def test_every_example_material_converts():
         json.loads(c.to_json())
         if not c.exact and c.error_closed is not None:
             assert c.error <= c.error_closed, m.name
+
+
+def test_cli_mtl_to_ggx_json_and_errors(tmp_path, capsys):
+    from brdf_fit.cli import main
+
+    p = tmp_path / "two.mtl"
+    p.write_text("newmtl wall\nKd 0.7 0.7 0.6\nillum 1\n\nnewmtl paint\nKd 0.5 0.1 0.1\n"
+                 "Ks 0.4 0.4 0.4\nNs 100\nillum 2\n")
+    assert main(["convert", "mtl-to-ggx", str(p), "--json", "--quiet"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert [m["name"] for m in doc["materials"]] == ["wall", "paint"]
+    paint = doc["materials"][1]
+    assert paint["target"] == "ggx-plastic" and paint["error"] <= paint["error_closed"]
+    bad = tmp_path / "bad.mtl"
+    bad.write_text("newmtl x\nKd 0.5 0.5\n")
+    for argv, fragment in ((["mtl-to-ggx", str(bad)], f"{bad}:2:"),
+                           (["mtl-to-ggx"], "needs an MTL FILE"),
+                           (["phong-to-ggx", str(p)], "takes no FILE")):
+        try:
+            code = main(["convert", *argv, "--quiet"])
+        except SystemExit as e:
+            code = e.code
+        err = capsys.readouterr().err
+        assert code == 2 and fragment in err and "Traceback" not in err, err

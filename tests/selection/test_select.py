@@ -46,9 +46,9 @@ def test_selects_the_right_kind_of_model(name):
     # the true model family reaches the noise: error ~1%, reduced chi-square ~1
     truth = s.candidate(TRUTHS[name][0])
     assert truth.error < 0.02 and 0.5 < truth.reduced_chi2 < 2.0
-    # the default budget rule: 2 x the best error, at least 1.5 x the noise level
+    # the default budget rule: 2 x the best error, at least 1.5 x the noise level and 1%
     best = min(c.error for c in s.candidates)
-    assert s.budget == pytest.approx(max(2 * best, 1.5 * s.noise_level))
+    assert s.budget == pytest.approx(max(2 * best, 1.5 * s.noise_level, 0.01))
     assert any(c.pareto for c in s.candidates)
 
 
