@@ -11,6 +11,11 @@ Every parameter is flat and named; colour parameters may carry a trailing channe
 from __future__ import annotations
 
 import difflib
+import functools
+import json
+import pathlib
+
+import numpy as np
 
 from brdf_fit.core.fresnel import ConductorFresnel, DielectricFresnel, SchlickFresnel
 from brdf_fit.core.microfacet import (
@@ -104,18 +109,24 @@ def _eta(default=1.5, doc="relative index of refraction eta_t/eta_i", channels=T
     return Param("eta", default, lo=0.0, lo_open=True, channels=channels, doc=doc)
 
 
-def _gold_eta():
-    # imported on first use: spectra loads colour-science (0.8 s here), which a registry
-    # look-up without a gold default never needs
-    from brdf_fit.core import spectra
+#: gold's effective RGB (eta, k), computed once by ``spectra.rgb_nk("Au")`` and stored: computing
+#: it imports colour-science and runs a small fit (1.3-1.9 s of every command that builds a gold
+#: default); tests/core/test_gold_default.py checks the file against the live computation
+GOLD_RGB_NK_FILE = pathlib.Path(__file__).resolve().parent / "resources" / "gold_rgb_nk.json"
 
-    return spectra.rgb_nk("Au")[0]
+
+@functools.cache
+def _gold_rgb_nk() -> tuple[tuple[float, ...], tuple[float, ...]]:
+    doc = json.loads(GOLD_RGB_NK_FILE.read_text(encoding="utf-8"))
+    return tuple(doc["eta"]), tuple(doc["k"])
+
+
+def _gold_eta():
+    return np.asarray(_gold_rgb_nk()[0], np.float64)
 
 
 def _gold_k():
-    from brdf_fit.core import spectra
-
-    return spectra.rgb_nk("Au")[1]
+    return np.asarray(_gold_rgb_nk()[1], np.float64)
 
 
 _ETA_AU = Param("eta", _gold_eta, lo=0.0, lo_open=True, channels=True,
