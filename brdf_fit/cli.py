@@ -989,7 +989,7 @@ def _select_scene(args, names, checks) -> int:
     if args.plot is not None:
         from brdf_fit.plot import scene_front
 
-        scene_front(res, title=args.scene).savefig(args.plot, dpi=110)
+        scene_front(res, title=res.scene.name).savefig(args.plot, dpi=110)
         written.append(args.plot)
     doc["written"] = written
     if args.json:
@@ -1007,6 +1007,9 @@ def _select_scene(args, names, checks) -> int:
               f"{c.selection.budget:8.4f} {c.cost_ns:8.2f}  {ex}")
         for n in c.material.notes:
             print(f"  {'':<{w}}   note: {n}")
+        for k, v in c.exports.items():
+            if "failed" in v:
+                print(f"  {'':<{w}}   {k} export failed: {v['failed']}")
     print(f"model set ({res.set_rule}): {', '.join(res.model_set)}: {len(res.model_set)} "
           f"kernel(s), {res.cost_ns_total:.3g} ns per evaluation in all, worst error "
           f"{res.worst_error:.4g}")
