@@ -1001,8 +1001,11 @@ def _select_scene(args, names, checks) -> int:
     print(f"  {'material':<{w}} {'kind':<5} {'model':<{wm}} {'error':>8} {'budget':>8} "
           f"{'ns/eval':>8}  exports")
     for c in res.materials:
-        ex = ", ".join(f"{k} {v['method']} {v['error']:.2g}" if "method" in v
-                       else f"{k} failed" for k, v in c.exports.items()) or "-"
+        ex = ", ".join(
+            f"{k} failed" if "method" not in v
+            else f"{k} {v['method']} " + ("(not verified)" if v["error"] is None
+                                          else f"{v['error']:.2g}")
+            for k, v in c.exports.items()) or "-"
         print(f"  {c.material.name:<{w}} {c.material.kind:<5} {c.model:<{wm}} {c.error:8.4f} "
               f"{c.selection.budget:8.4f} {c.cost_ns:8.2f}  {ex}")
         for n in c.material.notes:
@@ -1462,9 +1465,18 @@ def _enable_compilation_cache(enabled: bool) -> None:
     os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    """Warnings the library raises for the user (a clamped parameter, ...) as one line."""
+    print(f"brdf-fit: warning: {' '.join(str(message).split())}", file=file or sys.stderr)
+
+
 def main(argv: list[str] | None = None) -> int:
+    import warnings
+
     args = build_parser().parse_args(argv)
     _enable_compilation_cache(not args.no_cache)
+    shown = warnings.showwarning
+    warnings.showwarning = _show_warning
     try:
         return int(args.func(args) or 0)
     except KeyError as exc:  # unknown model (registry.UnknownModelError)
@@ -1479,6 +1491,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"brdf-fit: error: {msg}", file=sys.stderr)
             return 2
         raise
+    finally:
+        warnings.showwarning = shown
 
 
 if __name__ == "__main__":

@@ -26,6 +26,7 @@ from brdf_fit.core.microfacet import (
     SmithSeparable,
     VCavity,
 )
+from brdf_fit.core.numerics import ALPHA_MIN
 from brdf_fit.core.params import Entry, Param, UnknownModelError
 from brdf_fit.models import (
     KullaContyLobe,
@@ -98,7 +99,8 @@ def get(name: str) -> Entry:
 
 
 def _alpha(name="alpha", default=0.3, doc="GGX/Beckmann width alpha (not perceptual roughness)"):
-    return Param(name, default, lo=0.0, hi=1.0, lo_open=True, doc=doc)
+    # every model built with it evaluates max(alpha, ALPHA_MIN) (brdf_fit.core.microfacet)
+    return Param(name, default, lo=0.0, hi=1.0, lo_open=True, doc=doc, clamp_below=ALPHA_MIN)
 
 
 def _unit(name, default, doc, channels=True):

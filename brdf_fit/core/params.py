@@ -9,6 +9,7 @@ This is a bottom-layer module: model modules import it to declare their own entr
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -18,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import ArrayLike, Float
 
-from brdf_fit.core.validate import ParameterError, check_param, concrete
+from brdf_fit.core.validate import ParameterError, PrecisionWarning, check_param, concrete
 
 __all__ = [
     "Param",
@@ -105,6 +106,10 @@ class Param:
     hi_open: bool = False
     channels: bool = False
     doc: str = ""
+    #: the models evaluate ``max(value, clamp_below)`` (e.g. a microfacet width below
+    #: ``ALPHA_MIN``); a concrete value below it is valid, and :meth:`validate` warns
+    #: (:class:`~brdf_fit.core.validate.PrecisionWarning`) that it is evaluated at the clamp
+    clamp_below: float | None = None
 
     def default_value(self):
         v = self.default() if callable(self.default) else self.default
@@ -121,6 +126,13 @@ class Param:
                 raise ParameterError(
                     f"{entry_name}: parameter {self.name!r} must be {what}, got shape {v.shape}"
                 )
+        if (self.clamp_below is not None and v is not None and v.dtype != object and v.size
+                and float(np.min(v)) < self.clamp_below):
+            warnings.warn(PrecisionWarning(
+                f"{entry_name}: {self.name} = {float(np.min(v)):.3g} is below "
+                f"{self.clamp_below:g}: the model evaluates it at {self.clamp_below:g} (the "
+                "clamp that keeps D, Lambda and their gradients finite; brdf_fit.core.numerics"
+                ".ALPHA_MIN)"), stacklevel=4)
         check_param(
             self.name, value, self.lo, self.hi, self.lo_open, self.hi_open, owner=entry_name
         )

@@ -9,6 +9,11 @@ from __future__ import annotations
 import numpy as np
 
 
+class PrecisionWarning(UserWarning):
+    """A value was changed for the numerics (clamped, e.g. a microfacet ``alpha`` below
+    ``ALPHA_MIN``): the result is that of the changed value, and the warning says so."""
+
+
 class ParameterError(ValueError):
     """A model parameter is outside its valid range or has the wrong shape."""
 
