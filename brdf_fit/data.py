@@ -78,10 +78,19 @@ class GonioData:
         if value.ndim == 1:
             value = value[:, None]
         n = value.shape[0]
-        weight = (np.ones_like(value) if self.weight is None
-                  else np.broadcast_to(np.asarray(self.weight, np.float64), value.shape).copy())
-        sigma = (None if self.sigma is None
-                 else np.broadcast_to(np.asarray(self.sigma, np.float64), value.shape).copy())
+        def per_sample(name, a):
+            # a 1-D weight or sigma of a 1-D value is per sample, like the value: (N,) -> (N, 1)
+            a = np.asarray(a, np.float64)
+            if a.ndim == 1 and a.shape[0] == n and value.shape[1] != n:
+                a = a[:, None]
+            try:
+                return np.broadcast_to(a, value.shape).copy()
+            except ValueError:
+                raise DataError(f"{name} has shape {a.shape}, which does not match value's "
+                                f"{value.shape} (N samples x C channels)") from None
+
+        weight = np.ones_like(value) if self.weight is None else per_sample("weight", self.weight)
+        sigma = None if self.sigma is None else per_sample("sigma", self.sigma)
         object.__setattr__(self, "wi", wi)
         object.__setattr__(self, "wo", wo)
         object.__setattr__(self, "value", value)

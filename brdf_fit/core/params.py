@@ -126,6 +126,9 @@ class Param:
                 raise ParameterError(
                     f"{entry_name}: parameter {self.name!r} must be {what}, got shape {v.shape}"
                 )
+        check_param(
+            self.name, value, self.lo, self.hi, self.lo_open, self.hi_open, owner=entry_name
+        )
         if (self.clamp_below is not None and v is not None and v.dtype != object and v.size
                 and float(np.min(v)) < self.clamp_below):
             warnings.warn(PrecisionWarning(
@@ -133,9 +136,6 @@ class Param:
                 f"{self.clamp_below:g}: the model evaluates it at {self.clamp_below:g} (the "
                 "clamp that keeps D, Lambda and their gradients finite; brdf_fit.core.numerics"
                 ".ALPHA_MIN)"), stacklevel=4)
-        check_param(
-            self.name, value, self.lo, self.hi, self.lo_open, self.hi_open, owner=entry_name
-        )
 
 
 @dataclass(frozen=True)

@@ -212,6 +212,41 @@ def covariance_normal(A, meat, rss, m_eff):
     return cov if xp is np else jnp.where(finite, cov, jnp.nan)
 
 
+#: sample counts are padded up to a bucket (:func:`bucket`) so that fits of data of nearby sizes
+#: share one compiled solver: at most 1/BUCKETS_PER_OCTAVE (12.5%) more samples, and
+#: BUCKETS_PER_OCTAVE shapes per doubling of the sample count
+BUCKETS_PER_OCTAVE = 8
+#: no bucket is smaller than this
+MIN_BUCKET = 64
+
+
+def bucket(n: int) -> int:
+    """The padded sample count of ``n`` samples (``n`` itself when it is a bucket)."""
+    if n <= MIN_BUCKET:
+        return MIN_BUCKET
+    step = 2 ** max(int(math.floor(math.log2(n))) - int(math.log2(BUCKETS_PER_OCTAVE)), 0)
+    return -(-n // step) * step
+
+
+def _pad(arrays, n: int):
+    """``arrays`` of :func:`_arrays` (``n`` samples) padded to :func:`bucket` (n) samples that do
+    not count: weight 0 (their residuals are exactly 0: the metric multiplies by sqrt(w), or
+    with sigma sets the scale to 0 where w = 0), at the normal (wi = wo = z, finite for every
+    model), value 0 and sigma 1."""
+    wi, wo, f, w, sigma, floor = arrays
+    extra = bucket(n) - n
+    if extra == 0:
+        return arrays
+
+    def grow(a, fill):
+        pad = jnp.full((extra, *a.shape[1:]), fill, a.dtype)
+        return jnp.concatenate([a, pad])
+
+    z = jnp.zeros((extra, 3), wi.dtype).at[:, 2].set(1.0)
+    return (jnp.concatenate([wi, z]), jnp.concatenate([wo, z]), grow(f, 0.0), grow(w, 0.0),
+            None if sigma is None else grow(sigma, 1.0), floor)
+
+
 def _arrays(data: GonioData, max_zenith_deg, dtype):
     keep = np.ones(data.n, bool)
     if max_zenith_deg is not None:
@@ -330,6 +365,7 @@ def fit(
     data.validate()
     dtype = jnp.zeros(()).dtype
     arrays, n_used = _arrays(data, max_zenith_deg, dtype)
+    arrays = _pad(arrays, n_used)
     C = data.n_channels
     defaults = source.defaults()
     start, fixed = {}, {}
@@ -359,7 +395,8 @@ def fit(
     if vary:
         cands = _guess.design(problem, u0, vary, defaults)
         sub = _guess.subsample(n_used)
-        sub_arrays = tuple(a[sub] if isinstance(a, jax.Array) else a for a in arrays)
+        sub_arrays = _pad(tuple(a[sub] if isinstance(a, jax.Array) else a for a in arrays),
+                          len(sub))
         losses = np.asarray(jitted.per_channel(jnp.asarray(cands, dtype), sub_arrays, fx))
         u0 = np.asarray(_guess.pick(np, cands, losses, _guess.layout(problem, vary),
                                     _guess.channel_index(problem, C)))
@@ -377,13 +414,14 @@ def fit(
     flat_phys = layout.join(phys)
 
     # jitted: eagerly, each of the ~90 operations compiles on its own (3-5 s per fit, measured)
-    r = np.asarray(jitted.residuals_phys(flat_phys, arrays, fx))
+    real = n_used * C  # the padded samples' residuals (zero) and Jacobian rows are dropped
+    r = np.asarray(jitted.residuals_phys(flat_phys, arrays, fx))[:real]
     m_eff = int(np.sum(np.asarray(arrays[3]).reshape(-1) > 0))
     p = int(flat_phys.shape[0])
     stderr, codes = {}, np.zeros(p, int)
     params = {k: np.asarray(v) for k, v in phys.items()}
     if p:
-        J = np.asarray(jitted.jacobian(flat_phys, arrays, fx))
+        J = np.asarray(jitted.jacobian(flat_phys, arrays, fx))[:real]
         finite = bool(np.all(np.isfinite(J)) and np.all(np.isfinite(r)))
         # J^T J of finite J may still overflow: stderr_codes tests the product itself
         with np.errstate(over="ignore"):

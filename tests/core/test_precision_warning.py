@@ -31,3 +31,17 @@ def test_cli_prints_the_clamp_as_one_line(capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [e for e in err if e.startswith("brdf-fit: warning: ggx: alpha = 1e-06")]
     assert len(err) == 1
+
+
+def test_float32_albedo_warns_and_float64_does_not():
+    import jax.numpy as jnp
+
+    from brdf_fit import astype
+    from brdf_fit.verify.albedo import directional_albedo
+
+    m = registry.get("ggx").build()
+    wo = np.array([0.0, 0.6, 0.8])
+    with pytest.warns(PrecisionWarning, match="directional_albedo in float32"):
+        e32 = directional_albedo(astype(m, jnp.float32), jnp.asarray(wo, jnp.float32))
+    e64 = directional_albedo(m, wo)  # no warning (warnings are errors here)
+    assert abs(float(e32[0]) - float(e64[0])) < 1e-3

@@ -63,3 +63,23 @@ def test_spectral_channel_names():
     assert names == ("400nm", "550.5nm")
     np.testing.assert_allclose(channel_wavelengths(names), [400, 550.5])
     assert channel_wavelengths(("R", "G", "B")) is None
+
+
+def test_one_dimensional_sigma_and_weight_are_per_sample():
+    """GonioData(value (N,), sigma (N,)) used to fail with a NumPy broadcast error (issue 16);
+    a 1-D sigma or weight is per sample, and a shape that fits nothing is a DataError."""
+    import numpy as np
+    import pytest
+
+    from brdf_fit.data import DataError, GonioData
+
+    wi = np.tile([0.0, 0.0, 1.0], (5, 1))
+    d = GonioData(wi=wi, wo=wi, value=np.ones(5), sigma=np.arange(1, 6) / 10, weight=np.ones(5))
+    assert d.value.shape == d.sigma.shape == d.weight.shape == (5, 1)
+    np.testing.assert_array_equal(d.sigma[:, 0], np.arange(1, 6) / 10)
+    rgb = GonioData(wi=wi, wo=wi, value=np.ones((5, 3)), sigma=np.arange(1, 6) / 10,
+                    channels=("R", "G", "B"))
+    np.testing.assert_array_equal(rgb.sigma, np.repeat(np.arange(1, 6)[:, None] / 10, 3, 1))
+    with pytest.raises(DataError, match=r"sigma has shape \(4,\)"):
+        GonioData(wi=wi, wo=wi, value=np.ones((5, 3)), sigma=np.ones(4),
+                  channels=("R", "G", "B"))
