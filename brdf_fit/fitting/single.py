@@ -265,13 +265,28 @@ def _arrays(data: GonioData, max_zenith_deg, dtype):
 @dataclasses.dataclass(frozen=True)
 class _Jitted:
     """The compiled functions of one static problem (:func:`_compiled`); each takes the fixed
-    parameter values as its last argument, so problems that differ only in them share it."""
+    parameter values as its last argument, so problems that differ only in them share it.
+    ``run``: solve and the final loss; ``per_channel``: the start design's losses;
+    ``finish``: the physical parameters, residuals and Jacobian at the optimum (three jitted
+    functions, not five: each costs a trace in every new process)."""
 
     run: Callable
-    loss: Callable
     per_channel: Callable
-    residuals_phys: Callable
-    jacobian: Callable
+    finish: Callable
+
+
+def _run_and_loss(problem, u, a, solver, rtol, atol, max_steps):
+    u1, ok, steps = solve(problem, u, a, solver, rtol, atol, max_steps)
+    return u1, ok, steps, 0.5 * jnp.sum(problem.residuals(u1, a) ** 2)
+
+
+def _finish(problem, u, a):
+    phys = problem.unflatten(u)
+    x = problem.layout.join(phys)
+    r = problem.residuals_phys(x, a)
+    J = (jax.jacfwd(problem.residuals_phys)(x, a) if x.shape[0]
+         else jnp.zeros((r.shape[0], 0), r.dtype))
+    return phys, x, r, J
 
 
 _JITTED: dict = {}
@@ -299,12 +314,11 @@ def _compiled(problem: FitProblem, n_channels: int, solver, rtol, atol, max_step
 
     C = int(n_channels)
     got = _Jitted(
-        run=jax.jit(lambda u, a, fx: solve(P(fx), u, a, solver, rtol, atol, max_steps)),
-        loss=jax.jit(lambda u, a, fx: 0.5 * jnp.sum(P(fx).residuals(u, a) ** 2)),
+        run=jax.jit(lambda u, a, fx: _run_and_loss(P(fx), u, a, solver, rtol, atol,
+                                                   max_steps)),
         per_channel=jax.jit(jax.vmap(lambda u, a, fx: 0.5 * jnp.sum(
             P(fx).residuals(u, a).reshape(-1, C) ** 2, axis=0), in_axes=(0, None, None))),
-        residuals_phys=jax.jit(lambda x, a, fx: P(fx).residuals_phys(x, a)),
-        jacobian=jax.jit(lambda x, a, fx: jax.jacfwd(P(fx).residuals_phys)(x, a)),
+        finish=jax.jit(lambda u, a, fx: _finish(P(fx), u, a)),
     )
     if len(_JITTED) >= MAX_JITTED:
         _JITTED.pop(next(iter(_JITTED)))
@@ -385,12 +399,6 @@ def fit(
     jitted = _compiled(problem, C, solver, rtol, atol, max_steps)
     fx = problem.fixed
 
-    def run(u, a):
-        return jitted.run(u, a, fx)
-
-    def loss_fn(u, a):
-        return jitted.loss(u, a, fx)
-
     vary = tuple(n for n in free if n not in init) if guess == "grid" else ()
     if vary:
         cands = _guess.design(problem, u0, vary, defaults)
@@ -404,24 +412,22 @@ def fit(
     best = None
     for s in range(max(1, multistart)):
         u_start = u0 if s == 0 else u0 + rng.normal(0.0, 1.0, u0.shape)
-        sol = run(jnp.asarray(u_start, dtype), arrays)
-        loss = float(loss_fn(sol[0], arrays))
+        *sol, loss = jitted.run(jnp.asarray(u_start, dtype), arrays, fx)
+        loss = float(loss)
         if best is None or loss < best[1]:
             best = (sol, loss)
     (u, ok, steps), loss = best
-    phys = problem.unflatten(u)
-    # standard errors: Jacobian w.r.t. the free physical parameters, flattened
-    flat_phys = layout.join(phys)
-
-    # jitted: eagerly, each of the ~90 operations compiles on its own (3-5 s per fit, measured)
+    # standard errors: Jacobian w.r.t. the free physical parameters, flattened; jitted (eagerly,
+    # each of the ~90 operations compiles on its own: 3-5 s per fit, measured)
+    phys, flat_phys, r, J = jitted.finish(u, arrays, fx)
     real = n_used * C  # the padded samples' residuals (zero) and Jacobian rows are dropped
-    r = np.asarray(jitted.residuals_phys(flat_phys, arrays, fx))[:real]
+    r = np.asarray(r)[:real]
     m_eff = int(np.sum(np.asarray(arrays[3]).reshape(-1) > 0))
     p = int(flat_phys.shape[0])
     stderr, codes = {}, np.zeros(p, int)
     params = {k: np.asarray(v) for k, v in phys.items()}
     if p:
-        J = np.asarray(jitted.jacobian(flat_phys, arrays, fx))[:real]
+        J = np.asarray(J)[:real]
         finite = bool(np.all(np.isfinite(J)) and np.all(np.isfinite(r)))
         # J^T J of finite J may still overflow: stderr_codes tests the product itself
         with np.errstate(over="ignore"):
