@@ -1,7 +1,8 @@
 """Split-sum DFG table: time against error, this generator at several quadrature orders against
 the engines' estimator, in one run.
 
-    python benchmarks/bench_tables.py [--size 128] [--big 512] [--out benchmarks/results]
+    python benchmarks/bench_tables.py [--size 128] [--big 512] [--cube 16,32,64]
+                                      [--out benchmarks/results]
 
 Methods (all for the height-correlated GGX table ``A, B`` at texel centres, ``alpha = r^2``):
 
@@ -17,10 +18,17 @@ Methods (all for the height-correlated GGX table ``A, B`` at texel centres, ``al
 
 Reference: the half-vector rule at 96 x 128 nodes (its agreement with SciPy's adaptive quadrature
 at spot texels is a test: tests/tables/test_dfg.py). Errors are max and RMS over every texel of
-``A`` and ``B``. Time: wall seconds of the second call (compiled), 2 CPU cores; the first call's
-time (compile + run) is listed too. ``--big N`` also times one ``N x N`` table of the default
-generator and records the process's peak resident memory (``ru_maxrss``), to show that memory is
-bounded by the block size (rows are streamed in blocks of ``BLOCK`` texels).
+``A`` and ``B``. Time: wall seconds of the best of three calls after the first (compiled), 2 CPU
+cores; the first call's time (compile + run) is listed too. ``dfg_table`` rows time the whole
+table the CLI writes (the values and the error estimate), compiled, for each masking.
+
+Fresh processes (the console script ``brdf-fit``, one subprocess each, wall time and its peak
+resident memory from ``getrusage(RUSAGE_CHILDREN)``, ``BRDF_FIT_NO_CACHE=1`` so that nothing comes
+from the persistent compilation cache): ``lut dfg --size N`` from a cold process (compile
+included); ``--big N``: one ``N x N`` DFG table; ``--cube 16,32,64``: the 3-D dielectric
+table ``lut albedo cook-torrance --axis mu=N --axis alpha=N --axis eta=N:1.0:3.0`` at each size.
+Memory is bounded by the block size (texels are streamed in blocks, :mod:`brdf_fit.tables._stream`),
+so the peak should not grow with the table.
 
 Writes ``<out>/tables.md`` and ``<out>/tables.png`` (error against time).
 """
@@ -29,12 +37,14 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import json
 import math
 import os
 import platform
-import resource
 import shlex
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -42,7 +52,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from brdf_fit.tables.dfg import BLOCK, dfg_values
+from brdf_fit.tables.dfg import BLOCK, DFG_MASKINGS, dfg_table, dfg_values
 
 
 def hammersley(n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -97,22 +107,47 @@ def estimator_table(est, mu, alpha, dtype):
     return np.concatenate(out_a).reshape(mm.shape), np.concatenate(out_b).reshape(mm.shape)
 
 
-def timed(fn):
+def timed(fn, repeats: int = 3):
+    """``(result, first call s, best of ``repeats`` further calls s)``: the best, not the mean,
+    because the machine is shared and other work only ever adds time."""
     t0 = time.perf_counter()
     fn()
     first = time.perf_counter() - t0
+    best = math.inf
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        out = fn()
+        best = min(best, time.perf_counter() - t0)
+    return out, first, best
+
+
+def cli_run(args: list[str]) -> dict:
+    """Run ``brdf-fit ARGS`` in a fresh process: wall seconds and peak RSS (MiB)."""
+    exe = Path(sys.executable).with_name("brdf-fit")
+    cmd = [str(exe) if exe.exists() else "brdf-fit", *args, "--quiet"]
     t0 = time.perf_counter()
-    out = fn()
-    return out, first, time.perf_counter() - t0
+    # RUSAGE_CHILDREN's ru_maxrss is the largest over all waited children: a small wrapper
+    # process runs the one command and reports that command's own peak
+    code = ("import resource, subprocess, sys; subprocess.run(sys.argv[1:], check=True, "
+            "stdout=subprocess.DEVNULL); "
+            "print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)")
+    # BRDF_FIT_NO_CACHE: no persistent compilation cache, every run compiles (a cold process)
+    out = subprocess.run([sys.executable, "-c", code, *cmd], check=True, capture_output=True,
+                         text=True, env={**os.environ, "BRDF_FIT_NO_CACHE": "1"})
+    return {"command": "brdf-fit " + " ".join(shlex.quote(a) for a in args),
+            "s": time.perf_counter() - t0, "peak_rss_mib": int(out.stdout.split()[-1]) / 1024}
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--size", type=int, default=128)
     ap.add_argument("--big", type=int, default=512, help="also time one N x N table (0: skip)")
+    ap.add_argument("--cube", default="16,32,64",
+                    help="sizes N of the N^3 cook-torrance E(mu, alpha, eta) table ('': skip)")
     ap.add_argument("--out", default="benchmarks/results")
     args = ap.parse_args(argv)
     n = args.size
+    load0 = os.getloadavg()
     c = (np.arange(n) + 0.5) / n
     mu, alpha = c, c * c
     print(f"reference: halfvector 96 x 128 on {n} x {n}", flush=True)
@@ -140,15 +175,31 @@ def main(argv=None) -> int:
             (A, B), first, second = timed(
                 lambda est=est, dt=dt: estimator_table(est, mu, alpha, dt))
             record(label, A, B, first, second)
-    big = None
-    if args.big:
-        nb = args.big
-        cb = (np.arange(nb) + 0.5) / nb
-        t0 = time.perf_counter()
-        dfg_values(cb[None, :], (cb * cb)[:, None])
-        big = {"size": nb, "s": time.perf_counter() - t0,
-               "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
-        print(f"{nb} x {nb}: {big['s']:.1f} s, peak RSS {big['peak_rss_mib']:.0f} MiB", flush=True)
+    tables = []
+    for masking in DFG_MASKINGS:
+        _, first, second = timed(lambda masking=masking: dfg_table(n, masking))
+        tables.append({"masking": masking, "first_s": first, "s": second})
+        print(f"dfg_table({n}, {masking!r}): {second:.3f} s compiled, {first:.2f} s first",
+              flush=True)
+    runs = []
+    with tempfile.TemporaryDirectory() as tmp:
+        jobs = [["lut", "dfg", "--size", str(n), "--masking", m, "-o", f"{tmp}/dfg.npz"]
+                for m in DFG_MASKINGS]
+        if args.big:
+            jobs.append(["lut", "dfg", "--size", str(args.big), "-o", f"{tmp}/dfg_big.npz"])
+        for c in [int(x) for x in args.cube.split(",") if x.strip()]:
+            jobs.append(["lut", "albedo", "cook-torrance", "--axis", f"mu={c}", "--axis",
+                         f"alpha={c}", "--axis", f"eta={c}:1.0:3.0", "-o",
+                         f"{tmp}/ct{c}.npz"])
+        for job in jobs:
+            runs.append(cli_run(job))
+            runs[-1]["command"] = runs[-1]["command"].replace(tmp + "/", "")
+            sidecar = Path(job[job.index("-o") + 1]).with_suffix(".json")
+            meta = json.loads(sidecar.read_text()).get("meta", {})
+            runs[-1]["error"] = (meta.get("error_estimate") or {}).get("max_abs")
+            print(f"{runs[-1]['command']}: {runs[-1]['s']:.1f} s, peak RSS "
+                  f"{runs[-1]['peak_rss_mib']:.0f} MiB", flush=True)
+    load = os.getloadavg()
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -162,7 +213,7 @@ def main(argv=None) -> int:
         "",
         f"Table: {n} x {n} texels, height-correlated GGX, texel centres, alpha = r^2. Reference: "
         f"half-vector rule 96 x 128 ({t_ref:.1f} s). Errors over every texel of A and B. "
-        "Seconds: the second call (compiled); first call = compile + run.",
+        "Seconds: best of three calls after the first (compiled); first call = compile + run.",
         "",
         "| method | seconds | first call s | max error | RMS error |",
         "|---|---|---|---|---|",
@@ -170,10 +221,22 @@ def main(argv=None) -> int:
     for r in rows:
         lines.append(f"| {r['method']} | {r['s']:.3f} | {r['first_s']:.2f} | {r['max']:.2e} | "
                      f"{r['rms']:.2e} |")
-    if big:
-        lines += ["", f"One {big['size']} x {big['size']} table (default 48 x 64 rule, blocks of "
-                  f"{BLOCK} texels): {big['s']:.1f} s, process peak RSS {big['peak_rss_mib']:.0f} "
-                  "MiB (includes the runs above)."]
+    lines += ["", f"`dfg_table({n}, masking)` as `brdf-fit lut dfg` computes it (values and "
+              "error estimate), seconds of the best of three compiled calls and of the first:", "",
+              "| masking | seconds | first call s |", "|---|---|---|"]
+    for t in tables:
+        lines.append(f"| {t['masking']} | {t['s']:.3f} | {t['first_s']:.2f} |")
+    lines += ["", "Fresh processes (`BRDF_FIT_NO_CACHE=1`: compile included, nothing from the "
+              "persistent cache), wall seconds and the process's peak resident memory:", "",
+              "| command | seconds | peak RSS MiB | error estimate (metadata) |",
+              "|---|---|---|---|"]
+    for r in runs:
+        err = "-" if r["error"] is None else f"{r['error']:.2g}"
+        lines.append(f"| `{r['command']}` | {r['s']:.1f} | {r['peak_rss_mib']:.0f} | {err} |")
+    lines += ["", f"Load average at the start: {load0[0]:.1f} / {load0[1]:.1f} / {load0[2]:.1f}; "
+              f"at the end: {load[0]:.1f} / {load[1]:.1f} / "
+              f"{load[2]:.1f} (1 / 5 / 15 min) on {os.cpu_count()} cores: the machine was shared, "
+              "so times are upper bounds."]
     (out / "tables.md").write_text("\n".join(lines) + "\n")
     from matplotlib.figure import Figure
 
@@ -183,7 +246,7 @@ def main(argv=None) -> int:
         ax.loglog(r["s"], r["max"], "o" if r["method"].startswith("half") else "s")
         ax.annotate(r["method"], (r["s"], r["max"]), fontsize=7, xytext=(4, 2),
                     textcoords="offset points")
-    ax.set_xlabel(f"seconds for a {n} x {n} table (2 CPU cores, compiled)")
+    ax.set_xlabel(f"seconds for a {n} x {n} table (2 shared CPU cores, compiled, best of 3)")
     ax.set_ylabel("max abs error of A, B")
     ax.set_title("DFG table: error against time")
     ax.grid(True, which="both", lw=0.3)

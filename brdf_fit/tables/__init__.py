@@ -2,10 +2,11 @@
 
 ``dfg_table`` (split-sum ``A``, ``B`` of GGX, :mod:`brdf_fit.tables.dfg`), ``ms_tables`` (the
 energy-compensation ``E``, ``E_avg`` of GGX that ``brdf_fit/resources/tables`` ships,
-:mod:`brdf_fit.tables.energy`), the layouts engines
-use (:mod:`brdf_fit.tables.layouts`), and ``write_table`` / ``read_table`` for ``.npz``, OpenEXR,
-16-bit PNG and C/GLSL headers (:mod:`brdf_fit.tables.export`). The table object and its
-differentiable ``lookup`` live in :mod:`brdf_fit.core.table` (layer 0), so models can use tables.
+:mod:`brdf_fit.tables.energy`; Kelemen's specular-albedo table, :mod:`brdf_fit.tables.kelemen`),
+the layouts engines use (:mod:`brdf_fit.tables.layouts`), and ``write_table`` / ``read_table``
+for ``.npz``, OpenEXR, 16-bit PNG and C/GLSL headers (:mod:`brdf_fit.tables.export`). The table
+object and its differentiable ``lookup`` live in :mod:`brdf_fit.core.table` (layer 0), so models
+can use tables.
 """
 
 from brdf_fit.core.table import Axis, Table

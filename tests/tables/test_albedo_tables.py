@@ -71,3 +71,32 @@ def test_parse_axis():
     for bad in ("alpha", "alpha=x", "alpha=4:1"):
         with pytest.raises(ValueError, match="NAME=N"):
             parse_axis(bad)
+
+
+@pytest.mark.parametrize("model, axes, params", [
+    # eta (a channel parameter) as the last, then the middle axis; endpoints include eta < 1
+    ("cook-torrance", {"mu": 3, "alpha": (2, 0.05, 0.9), "eta": (3, 0.7, 2.5)}, None),
+    ("cook-torrance", {"mu": 2, "eta": (3, 1.2, 2.0), "alpha": (2, 0.2, 0.6)}, None),
+    ("ggx", {"mu": 2, "f0": (3, 0.02, 0.9), "alpha": (2, 0.1, 1.0)}, None),
+])
+def test_channel_axis_equals_texel_by_texel(model, axes, params):
+    """A channel-parameter axis computed as the model's channels (one rule per texel for every
+    value) gives the table, E_avg and error estimate of the texel-by-texel path."""
+    a = albedo_table(model, axes, params, centres=False)
+    b = albedo_table(model, axes, params, centres=False, channel_axes=False)
+    assert a.meta["channel_axis"] in ("eta", "f0") and b.meta["channel_axis"] is None
+    assert a.values.shape == b.values.shape and a.channels == b.channels == ("E",)
+    np.testing.assert_allclose(a.values, b.values, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(np.asarray(a.meta["E_avg"]["values"]),
+                               np.asarray(b.meta["E_avg"]["values"]), rtol=0, atol=1e-14)
+    assert abs(a.meta["error_estimate"]["max_abs"] - b.meta["error_estimate"]["max_abs"]) < 1e-14
+    avg = average_table(model, {k: v for k, v in axes.items() if k != "mu"}, params,
+                        centres=False)
+    np.testing.assert_allclose(avg.values, np.asarray(a.meta["E_avg"]["values"]), rtol=0,
+                               atol=1e-14)
+
+
+def test_rgb_model_keeps_its_channels():
+    """A model with RGB output (ggx's default f0) computes an f0-free axis texel by texel."""
+    t = albedo_table("ggx", {"mu": 2, "alpha": 2}, error_estimate=False)
+    assert t.meta["channel_axis"] is None and t.channels == ("E_R", "E_G", "E_B")

@@ -154,3 +154,44 @@ def test_full_128_table_against_twice_the_order(masking):
     A2, B2 = dfg_values(c[None, :], (c**2)[:, None], masking, n_theta=96, n_phi=128)
     assert np.abs(t.values[..., 0] - A2).max() < 1e-7
     assert np.abs(t.values[..., 1] - B2).max() < 1e-7
+
+
+def test_halfvector_rule_is_mirror_symmetric_ray_for_ray():
+    """dfg._dfg_block sums the first n_phi / 2 rays of the isotropic half-vector rule twice: this
+    holds if the last n_phi / 2 rays are the mirror images (wi.y -> -wi.y) of the first, node for
+    node with the same weights. Checked on the traced (jit) construction that _dfg_block uses,
+    over both pole placements (lobe centre: chords at chi and -chi; horizon: psi and -psi) and
+    the split panels), and at mu = 1, where the view has no azimuth."""
+    import jax
+    import jax.numpy as jnp
+
+    from brdf_fit.core.quadrature import halfvector_rule
+
+    n_theta, n_phi = 6, 16
+    mu, alpha = (g.ravel() for g in np.meshgrid([1e-6, 0.02, 0.3, 0.7, 1.0],
+                                                [1.5e-5, 1e-3, 0.05, 0.4, 1.0]))
+
+    @jax.jit
+    def rule(mu, alpha):
+        so = jnp.sqrt(1.0 - mu * mu)
+        wo = jnp.stack([so, jnp.zeros_like(mu), mu], axis=-1)
+        r = halfvector_rule(wo, alpha, n_theta=n_theta, n_phi=n_phi, dtype=jnp.float64)
+        return r.directions, r.weights
+
+    with jax.enable_x64(True):
+        d, w = (np.asarray(x) for x in rule(jnp.asarray(mu), jnp.asarray(alpha)))
+    d = d.reshape(mu.size, n_phi, n_theta, 3)
+    w = w.reshape(mu.size, n_phi, n_theta)
+    first, second = d[:, : n_phi // 2], d[:, n_phi // 2:]
+    for k in range(mu.size):
+        # the first half mirrored (y -> -y) is the second half: the same (x, y, z, w) rows; at
+        # mu = 1 (no plane of incidence, the integrand depends on wi.z only) the halves mirror
+        # about the vertical plane of the rule's pole, whatever its azimuth: the same (z, w) rows
+        cols = [0, 1, 2, 3] if mu[k] < 1 else [2, 3]
+        a = np.column_stack([first[k].reshape(-1, 3) * [1.0, -1.0, 1.0],
+                             w[k, : n_phi // 2].ravel()])[:, cols]
+        b = np.column_stack([second[k].reshape(-1, 3), w[k, n_phi // 2:].ravel()])[:, cols]
+        # sorted on keys rounded to 1e-11 (mirror pairs agree to rounding, not bit for bit)
+        a = a[np.lexsort(np.round(a, 11).T[::-1])]
+        b = b[np.lexsort(np.round(b, 11).T[::-1])]
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-14 * np.abs(w[k]).max())
