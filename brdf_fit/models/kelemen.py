@@ -19,24 +19,35 @@ at most 1 for ``F <= 1``. Integrating ``f_m`` over ``l`` gives ``rho_m (1 - a_s(
 total albedo is ``a_s(v) + rho_m (1 - a_s(v)) <= 1`` for ``rho_m <= 1``, with equality for a white
 matte (``rho_m = 1``): energy conservation by construction, not by accident.
 
-The albedo table, in JAX (so gradients flow w.r.t. ``alpha`` and ``f0``): Schlick's F is linear
-in ``f0``, ``F = f0 + (1 - f0)(1 - c)^5``, so ``a_s = f0 A(mu) + (1 - f0) B(mu)`` with two
-channel-free functions ``A = Int D/(4c^2) cos'``, ``B = Int (1 - c)^5 D/(4c^2) cos'``. They are
-computed at :data:`TABLE_NODES` Chebyshev nodes in ``s = sqrt(mu)`` by the lobe-adapted,
-horizon-exact half-vector rule :func:`brdf_fit.quadrature.halfvector_rule`
-(:data:`TABLE_N_THETA` x :data:`TABLE_N_PHI` nodes each; nodes fixed under ``stop_gradient``,
-integrand differentiated), and interpolated by the Chebyshev polynomial through them
-(``sqrt(mu)`` because ``a_s`` varies like ``sqrt(mu)`` near grazing: in ``mu`` the interpolation
-error was 1e-3, in ``sqrt(mu)`` 1.5e-6 at alpha = 0.3; measured in tests/test_kelemen.py against
-an independent SciPy integration). ``a_bar`` is the exact integral of the interpolant (Gauss-
-Legendre in ``s``), so the matte albedo is exactly ``rho_m (1 - a_s^I(v))`` and the white-matte
-albedo is ``1 + a_s(v) - a_s^I(v)``: 1 up to the table's error (about 1e-6 at alpha >= 0.05,
-1e-4 at alpha = 1e-3, where ``a_s`` changes on the scale ``mu ~ alpha``; appleseed's 32-entry
-linear table in ``mu`` with 1024 Hammersley samples is far coarser). ``1 - a_s^I`` is clamped at 0
-and the matte term is 0 where ``1 - a_bar <= MATTE_DENOM_EPS`` (``f0 = 1``: a perfect mirror-like
-coat lets nothing through). The table is computed in float64 whenever x64 is enabled, also for a
-float32 model, and cast back (in float32 the grazing nodes lose all accuracy; with x64 disabled
-the table, and so the coupling, is only good to ~2% at grazing: a known limitation).
+The albedo table (gradients flow w.r.t. ``alpha`` and ``f0``): Schlick's F is linear in ``f0``,
+``F = f0 + (1 - f0)(1 - c)^5``, so ``a_s = f0 A(mu) + (1 - f0) B(mu)`` with two channel-free
+functions ``A = Int D/(4c^2) cos'``, ``B = Int (1 - c)^5 D/(4c^2) cos'``. At :data:`TABLE_NODES`
+Chebyshev nodes in ``s = sqrt(mu)`` they are integrated by the lobe-adapted, horizon-exact
+half-vector rule :func:`brdf_fit.quadrature.halfvector_rule` (:data:`TABLE_N_THETA` x
+:data:`TABLE_N_PHI` nodes each; :func:`albedo_nodes`), and interpolated in ``mu`` by the Chebyshev
+polynomial through them (``sqrt(mu)`` because ``a_s`` varies like ``sqrt(mu)`` near grazing: in
+``mu`` the interpolation error was 1e-3, in ``sqrt(mu)`` 1.5e-6 at alpha = 0.3; measured in
+tests/test_kelemen.py against an independent SciPy integration).
+
+**Packaged table.** Integrating per material cost a 13 s compilation per model shape (issue 17);
+the node values are instead precomputed once on :data:`ALBEDO_TABLE_N_ALPHA` endpoint nodes of
+``log10(alpha)`` in ``[-4, 0]`` (``brdf_fit/resources/tables/kelemen_AB.npz``, written by
+``python -m brdf_fit.tables.kelemen``; tests/tables/test_kelemen_resource.py checks it equals a
+regeneration) and :func:`albedo_table` interpolates them in ``log10(alpha)`` by
+:meth:`brdf_fit.core.table.Table.lookup` with ``order=3`` (cubic Lagrange, differentiable in
+``alpha``): within :data:`ALBEDO_TABLE_INTERPOLATION_ERROR` of :func:`albedo_nodes` at every cell
+midpoint (measured; linear interpolation on the same grid: 1e-4). ``alpha`` below
+``ALPHA_MIN = 1e-4`` uses ``ALPHA_MIN``, as the lobe does.
+
+``a_bar`` is the exact integral of the interpolant (Gauss-Legendre in ``s``), so the matte albedo
+is exactly ``rho_m (1 - a_s^I(v))`` and the white-matte albedo is ``1 + a_s(v) - a_s^I(v)``: 1 up
+to the table's error (about 1e-6 at alpha >= 0.05, 1e-4 at alpha = 1e-3, where ``a_s`` changes on
+the scale ``mu ~ alpha``; appleseed's 32-entry linear table in ``mu`` with 1024 Hammersley
+samples is far coarser). ``1 - a_s^I`` is clamped at 0 and the matte term is 0 where
+``1 - a_bar <= MATTE_DENOM_EPS`` (``f0 = 1``: a perfect mirror-like coat lets nothing through).
+:func:`albedo_nodes` computes in float64 whenever x64 is enabled, also for a float32 model (in
+float32 the grazing nodes lose all accuracy); the packaged table is float64 and is looked up in
+the model's dtype.
 
 Sampling (the mixture with appleseed's probabilities, exact pdf): with
 ``w_s = mean_c a_s(n.v)`` and ``w_m = mean_c rho_m (1 - a_s(n.v))`` (channel means), pick the
@@ -47,6 +58,9 @@ specular lobe with probability ``p_s = w_s/(w_s + w_m)``: Beckmann NDF sampling 
 
 from __future__ import annotations
 
+import functools
+import importlib.resources
+
 import jax.numpy as jnp
 import numpy as np
 
@@ -56,12 +70,14 @@ from brdf_fit.core.microfacet import Beckmann, reflect_about
 from brdf_fit.core.numerics import ALPHA_MIN, INV_PI, pow5, safe_div, safe_sqrt
 from brdf_fit.core.params import Channels, Entry, Param, Scalar, bounded
 from brdf_fit.core.quadrature import halfvector_rule
+from brdf_fit.core.table import Table, load_table
 from brdf_fit.core.validate import check_param
 from brdf_fit.core.warp import sample_cosine_hemisphere
 from brdf_fit.models._base import AbstractBRDF, QuadratureLobe, expand_channels
 from brdf_fit.models._lobes import finish_sample, half_geometry, half_vector, sanitize
 
-__all__ = ["Kelemen", "registry_entries", "albedo_table", "specular_albedo"]
+__all__ = ["ALBEDO_TABLE_FILE", "Kelemen", "albedo_nodes", "albedo_table", "registry_entries",
+           "specular_albedo"]
 
 #: Chebyshev nodes of the albedo table in ``s = sqrt(mu)``.
 TABLE_NODES = 32
@@ -72,6 +88,15 @@ TABLE_N_PHI = 64
 #: numerator ``(1 - a_s(l))(1 - a_s(v))`` vanishes as well; 1e-12 is far above the round-off of
 #: ``a_bar`` ~ 1e-16 and far below any physical matte transmission).
 MATTE_DENOM_EPS = 1e-12
+#: the packaged table of :func:`albedo_nodes` over ``log10(alpha)`` (module docstring), written by
+#: ``brdf_fit.tables.kelemen``
+ALBEDO_TABLE_FILE = "kelemen_AB.npz"
+#: endpoint nodes of ``log10(alpha)`` in ``[log10(ALPHA_MIN), 0] = [-4, 0]`` (spacing 1/64)
+ALBEDO_TABLE_N_ALPHA = 257
+#: measured max |cubic lookup - albedo_nodes| of ``A`` and ``B`` over every cell midpoint of the
+#: packaged grid (``brdf_fit.tables.kelemen``, recorded in the table's metadata); linear
+#: interpolation on the same grid: 1.0e-4, on 513 nodes 2.6e-5; measured 4.12e-7
+ALBEDO_TABLE_INTERPOLATION_ERROR = 4.2e-7
 
 
 def _chebyshev_setup(n):
@@ -96,9 +121,10 @@ def _beckmann(alpha):
     return Beckmann(jnp.maximum(alpha, ALPHA_MIN))
 
 
-def albedo_table(alpha):
-    """``(A, B)`` at the table's nodes ``mu_k`` (:data:`TABLE_NODES` each): the specular albedo
-    is ``a_s(mu_k) = f0 A_k + (1 - f0) B_k``. Differentiable in ``alpha``."""
+def albedo_nodes(alpha):
+    """``(A, B)`` at the Chebyshev nodes ``mu_k`` (:data:`TABLE_NODES` each) by quadrature: the
+    specular albedo is ``a_s(mu_k) = f0 A_k + (1 - f0) B_k``. Differentiable in ``alpha``. The
+    model uses the packaged table of these values (:func:`albedo_table`)."""
 
     alpha = jnp.asarray(alpha)
     out_dt = alpha.dtype
@@ -119,6 +145,31 @@ def albedo_table(alpha):
     A = jnp.sum(w * base, axis=-1).astype(out_dt)
     B = jnp.sum(w * base * pow5(1.0 - c), axis=-1).astype(out_dt)
     return A, B
+
+
+@functools.lru_cache(maxsize=1)
+def _packaged_table() -> Table:
+    path = importlib.resources.files("brdf_fit") / "resources" / "tables" / ALBEDO_TABLE_FILE
+    with importlib.resources.as_file(path) as p:
+        return load_table(p)
+
+
+@functools.lru_cache(maxsize=4)
+def _typed_table(dtype_name: str) -> Table:
+    t = _packaged_table()
+    return Table(np.asarray(t.values, np.dtype(dtype_name)), t.axes, t.channels)
+
+
+def albedo_table(alpha):
+    """``(A, B)`` at the Chebyshev nodes ``mu_k`` (:data:`TABLE_NODES` each), looked up in the
+    packaged table (cubic in ``log10(alpha)``, module docstring): the specular albedo is
+    ``a_s(mu_k) = f0 A_k + (1 - f0) B_k``. Differentiable in ``alpha``; in ``alpha``'s float
+    dtype."""
+    alpha = jnp.asarray(alpha)
+    dt = alpha.dtype if jnp.issubdtype(alpha.dtype, jnp.floating) else jnp.result_type(float)
+    table = _typed_table(jnp.dtype(dt).name)
+    v = table.lookup(jnp.log10(jnp.maximum(alpha.astype(dt), ALPHA_MIN)), order=3)
+    return v[..., :TABLE_NODES], v[..., TABLE_NODES:]
 
 
 def _interp(values, mu):
@@ -258,7 +309,7 @@ def registry_entries():
             reference=f"{_KSK_2001}; Beckmann D, Schlick F (as appleseed kelemenbrdf.cpp)",
             description=(
                 "F D/(4 (l.h)^2) + rho_m (1-a_s(l))(1-a_s(v))/(pi (1-a_bar)), specular albedo "
-                "table computed in JAX per material; energy conserving for rho_m <= 1"
+                "from a packaged table (cubic in log alpha); energy conserving for rho_m <= 1"
             ),
             aliases=("kelemen-szirmay-kalos", "coupled"),
             year=2001,
