@@ -1077,7 +1077,9 @@ def _lut_albedo(args) -> int:
     total = 1
     for spec in axes.values():
         total *= spec if isinstance(spec, int) else spec[0]
-    bar, progress = _progress_callback(not args.quiet, f"{args.table} {args.model} ({total} nodes)")
+    label = (f"{args.table} {args.model} ({total} nodes"
+             + (", then E_avg" if args.table == "albedo" else "") + ")")
+    bar, progress = _progress_callback(not args.quiet, label)
     t0 = time.perf_counter()
     try:
         if args.table == "albedo":
