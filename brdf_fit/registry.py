@@ -42,6 +42,7 @@ from brdf_fit.models import (
     granier_heidrich,
     hanrahan_krueger,
     htsg,
+    kajiya,
     kelemen,
     lafortune,
     lewis,
@@ -444,6 +445,7 @@ FAMILY_MODULES = (
     beard_maxwell,
     hanrahan_krueger,
     poulin_fournier,
+    kajiya,
 )
 
 for _module in FAMILY_MODULES:
