@@ -479,6 +479,25 @@ def _params(c) -> dict:
     return {k: np.asarray(v, np.float64) for k, v in c.params.items()}
 
 
+def _export_each(result: SceneSelection, target: str, export, error_type, extra=None):
+    """``export(model, params, name=, geometry=)`` of every material's choice, on the
+    material's own samples; the outcome recorded in ``exports[target]`` (method, error, note,
+    ``extra(e)``; or ``failed`` with the reason). Returns ``(choice, export)`` of the successes."""
+    done = []
+    for c in result.materials:
+        d = c.material.data
+        try:
+            e = export(c.model, _params(c.candidate()), name=c.material.name,
+                       geometry=(d.wi, d.wo))
+        except error_type as exc:
+            c.exports[target] = {"failed": str(exc)}
+            continue
+        c.exports[target] = {"method": e.method, "error": _num(e.error), "note": e.note,
+                             **(extra(e) if extra else {})}
+        done.append((c, e))
+    return done
+
+
 def export_scene(result: SceneSelection, gltf_path=None, mitsuba_path=None) -> list[str]:
     """Write the scene's chosen materials as a glTF 2.0 document (``gltf_path``, materials only:
     :func:`brdf_fit.convert.gltf.to_gltf`) and as a Mitsuba 3 scene of ``<bsdf>`` elements
@@ -488,36 +507,15 @@ def export_scene(result: SceneSelection, gltf_path=None, mitsuba_path=None) -> l
     ``failed`` (the other materials are still written). Returns the paths written."""
     written = []
     if gltf_path is not None:
-        exports = []
-        for c in result.materials:
-            d = c.material.data
-            try:
-                e = cgltf.to_gltf(c.model, _params(c.candidate()), name=c.material.name,
-                                  geometry=(d.wi, d.wo))
-            except cgltf.ExportError as exc:
-                c.exports["gltf"] = {"failed": str(exc)}
-                continue
-            exports.append(e)
-            c.exports["gltf"] = {"method": e.method, "error": _num(e.error), "note": e.note,
-                                 "extensions_used": e.extensions_used}
-        cgltf.write_gltf(gltf_path, exports)
+        exports = _export_each(result, "gltf", cgltf.to_gltf, cgltf.ExportError, lambda e: {
+            "extensions_used": e.extensions_used})
+        cgltf.write_gltf(gltf_path, [e for _, e in exports])
         written.append(str(gltf_path))
     if mitsuba_path is not None:
         from brdf_fit.convert import mitsuba as cmi
 
-        parts = []
-        for c in result.materials:
-            d = c.material.data
-            try:
-                e = cmi.to_mitsuba(c.model, _params(c.candidate()), name=c.material.name,
-                                   geometry=(d.wi, d.wo))
-            except cmi.ExportError as exc:
-                c.exports["mitsuba"] = {"failed": str(exc)}
-                continue
-            parts.append(cmi.scene_dict_to_xml(e.scene_dict, bsdf_id=c.material.name,
-                                               version=None))
-            c.exports["mitsuba"] = {"method": e.method, "error": _num(e.error),
-                                    "note": e.note}
+        parts = [cmi.scene_dict_to_xml(e.scene_dict, bsdf_id=c.material.name, version=None)
+                 for c, e in _export_each(result, "mitsuba", cmi.to_mitsuba, cmi.ExportError)]
         text = ('<?xml version="1.0" encoding="utf-8"?>\n'
                 f"<!-- brdf_fit select --scene {os.path.basename(result.scene.path)}: "
                 "one bsdf per material (alpha, not roughness) -->\n"
