@@ -247,7 +247,8 @@ def _validate(exponents, metric, max_zenith_deg):
     return ex
 
 
-def _one(source: str, n: float, metric: str, max_zenith_deg: float) -> PhongToGGXRow:
+def _one(source: str, n: float, metric: str, max_zenith_deg: float,
+         pad_to: int | None = None) -> PhongToGGXRow:
     import jax.numpy as jnp
 
 
@@ -264,7 +265,7 @@ def _one(source: str, n: float, metric: str, max_zenith_deg: float) -> PhongToGG
     data = GonioData(wi=wi, wo=wo, value=f[:, None], channels=("Y",),
                      metadata={"source": source, "params": params})
     init = {"alpha": min(a_closed, 0.999), "f0": PEAK_F0}
-    r = fit(data, "ggx", init=init, metric=metric)
+    r = fit(data, "ggx", init=init, metric=metric, pad_to=pad_to)
     ggx = registry.get("ggx")
     m = np.asarray(r.model.eval(jnp.asarray(wi), jnp.asarray(wo)), float).reshape(-1)
     m_closed = np.asarray(ggx.build(alpha=min(a_closed, 1.0), f0=PEAK_F0).eval(
@@ -322,10 +323,12 @@ def phong_to_ggx(
     source = _source_name(source)
     ex = _validate(exponents, metric, max_zenith_deg)
     rows = []
+    # one padded size for every exponent's geometry: one compiled solver for the whole series
+    size = max(geometry(_closed_alpha(source, n), max_zenith_deg)[0].shape[0] for n in ex)
     for k, n in enumerate(ex):
         if progress is not None:
             progress(k, len(ex), n)
-        rows.append(_one(source, n, metric, float(max_zenith_deg)))
+        rows.append(_one(source, n, metric, float(max_zenith_deg), pad_to=size))
     via = ("phong_to_blinn_phong_exponent (n_b = 4 n), then blinn_phong_to_ggx_alpha"
            if SOURCES[source] == "phong" else "blinn_phong_to_ggx_alpha")
     return PhongToGGXResult(

@@ -228,13 +228,13 @@ def bucket(n: int) -> int:
     return -(-n // step) * step
 
 
-def _pad(arrays, n: int):
+def _pad(arrays, n: int, at_least: int | None = None):
     """``arrays`` of :func:`_arrays` (``n`` samples) padded to :func:`bucket` (n) samples that do
     not count: weight 0 (their residuals are exactly 0: the metric multiplies by sqrt(w), or
     with sigma sets the scale to 0 where w = 0), at the normal (wi = wo = z, finite for every
     model), value 0 and sigma 1."""
     wi, wo, f, w, sigma, floor = arrays
-    extra = bucket(n) - n
+    extra = bucket(max(n, at_least or 0)) - n
     if extra == 0:
         return arrays
 
@@ -344,6 +344,7 @@ def fit(
     guess: str = "grid",
     free: Sequence[str] | None = None,
     bounds: dict | None = None,
+    pad_to: int | None = None,
 ) -> FitResult:
     """Fit ``model`` to ``data``: a registry name (or :class:`~brdf_fit.core.params.Entry`),
     or any built model (an :class:`~brdf_fit.models.AbstractBRDF` pytree, composed or not),
@@ -366,6 +367,9 @@ def fit(
     ``guess``: ``"grid"`` (default) starts the parameters that have no ``init`` value from the
     best of a coarse design evaluated on a subsample of the data (:mod:`brdf_fit.fitting.guess`;
     the defaults are one of its candidates); ``"none"`` starts them at the defaults.
+    ``pad_to``: pad the samples (weight 0, not counted anywhere) to the bucket of at least this
+    many, so that a series of fits of different sizes shares one compiled solver (every fit pads
+    to :func:`bucket` of its own size anyway).
     """
 
     t0 = time.perf_counter()
@@ -379,7 +383,7 @@ def fit(
     data.validate()
     dtype = jnp.zeros(()).dtype
     arrays, n_used = _arrays(data, max_zenith_deg, dtype)
-    arrays = _pad(arrays, n_used)
+    arrays = _pad(arrays, n_used, pad_to)
     C = data.n_channels
     defaults = source.defaults()
     start, fixed = {}, {}

@@ -130,3 +130,26 @@ def test_solution_is_differentiable_with_respect_to_data():
     fd = (alpha_of(1.0 + h) - alpha_of(1.0 - h)) / (2 * h)
     assert np.isfinite(float(g))
     np.testing.assert_allclose(float(g), float(fd), rtol=1e-4)
+
+
+def test_padding_changes_nothing_but_the_compiled_shape():
+    """fit pads its samples to a bucket (weight 0); pad_to pads further. Neither changes the
+    result: parameters, standard errors, rms, sample count."""
+    import numpy as np
+
+    from brdf_fit.fitting.single import bucket, fit
+    from data_synth.recipes import synthesize
+
+    d = synthesize({"model": "ggx", "params": {"alpha": 0.25}, "seed": 4,
+                    "plan": {"name": "in_plane", "args": {"theta_i_deg": [0, 30, 60],
+                                                          "theta_o_deg": [-60, -30, 0, 20, 40,
+                                                                          60, 75]}},
+                    "noise": [{"type": "lognormal", "args": {"sigma": 0.01}}]})
+    assert bucket(d.n) >= d.n and bucket(bucket(d.n)) == bucket(d.n)
+    a = fit(d, "ggx")
+    b = fit(d, "ggx", pad_to=1000)
+    assert a.n_samples == b.n_samples == d.n
+    for k in a.params:
+        np.testing.assert_allclose(b.params[k], a.params[k], rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(b.stderr[k], a.stderr[k], rtol=1e-6)
+    assert b.residual_rms == pytest.approx(a.residual_rms, rel=1e-9)
