@@ -76,6 +76,7 @@ import optimistix as optx
 
 from brdf_fit import registry
 from brdf_fit._version import __version__
+from brdf_fit.convert.error import radiance_error
 from brdf_fit.convert.phong_to_ggx import GRID, LOBE_N_PHI, LOBE_S, LOBE_THETA_I_DEG, geometry
 from brdf_fit.core.numerics import ALPHA_MIN, INV_PI
 from brdf_fit.core.params import UnknownModelError
@@ -221,18 +222,6 @@ def default_geometry(width: float = 0.5, max_zenith_deg: float = 80.0):
         f"w = {width:.4g} rad); both directions within {max_zenith_deg:g} deg of the normal; "
         f"{wi.shape[0]} direction pairs")
     return wi, wo, text
-
-
-def radiance_error(f_src, f_export, wi) -> float:
-    """:data:`ERROR_MEASURE` of ``f_export`` against ``f_src`` (``(N, C)`` or ``(N,)``), NumPy
-    float64."""
-    f_src = np.asarray(f_src, float)
-    f_export = np.asarray(f_export, float)
-    c = np.asarray(wi, float)[:, 2]
-    c = c.reshape((-1,) + (1,) * (f_src.ndim - 1))
-    num = np.sum(((f_src - f_export) * c) ** 2)
-    den = np.sum((f_src * c) ** 2)
-    return float(np.sqrt(num / den)) if den > 0 else float(np.sqrt(num))
 
 
 # ----------------------------------------------------------------------------- export

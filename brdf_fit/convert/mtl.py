@@ -72,6 +72,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from brdf_fit import registry
+from brdf_fit.convert.error import radiance_error
 from brdf_fit.convert.phong import blinn_phong_to_ggx_alpha
 from brdf_fit.convert.phong_to_ggx import REPRESENTS_TOL, geometry
 from brdf_fit.core.numerics import ALPHA_MIN
@@ -346,17 +347,6 @@ def _values(model, wi, wo, channels: int) -> np.ndarray:
     return np.broadcast_to(v, (v.shape[0], channels)).copy()
 
 
-def _radiance_error(f: np.ndarray, m: np.ndarray, cos_i: np.ndarray) -> float:
-    """:data:`ERROR_DEFINITION`. (brdf_fit.selection.radiance_error computes the same but lives
-    in a higher layer; brdf_fit.convert.phong_to_ggx has it inline, not as a function.)"""
-    c = cos_i[:, None]
-    num = float(np.sum(((m - f) * c) ** 2))
-    den = float(np.sum((f * c) ** 2))
-    if den == 0.0:
-        return 0.0 if num == 0.0 else math.inf
-    return math.sqrt(num / den)
-
-
 def _closed_f0(target: str, alpha: float, f, rho, wi, wo, cos_i):
     """``f0`` minimising the radiance error at fixed ``alpha`` and diffuse albedo ``rho`` (None:
     no diffuse), clipped to [0, 1]: one grey value for ``ggx-plastic``, one per channel for
@@ -505,15 +495,15 @@ def mtl_to_ggx(m: MtlMaterial, max_zenith_deg: float = 80.0) -> MtlConversion:
         if rho is not None:
             closed["rho_d"] = rho
             fix = {"rho_d": rho}
-        err_closed = _radiance_error(f, _values(_build(target, closed), wi, wo, C), cos_i)
+        err_closed = radiance_error(f, _values(_build(target, closed), wi, wo, C), wi)
         if spec is not None:
             ks = np.minimum(np.asarray(spec["rho_s"], float) / SPECULAR_SCALE, 1.0)
             direct = dict(closed, f0=float(np.mean(ks)) if rho is not None else ks)
-            err_direct = _radiance_error(f, _values(_build(target, direct), wi, wo, C), cos_i)
+            err_direct = radiance_error(f, _values(_build(target, direct), wi, wo, C), wi)
         init = {k: v for k, v in closed.items() if k not in fix}
     r = fit(data, target, fix=fix, init={k: np.asarray(v) for k, v in init.items()}, **METRIC)
     params = {**{k: np.asarray(v) for k, v in r.params.items()}, **fix}
-    err = _radiance_error(f, _values(r.model, wi, wo, C), cos_i)
+    err = radiance_error(f, _values(r.model, wi, wo, C), wi)
     if spec is not None and target != "lambert":
         ks = float(np.mean(np.minimum(np.asarray(spec["rho_s"]) / SPECULAR_SCALE, 1.0)))
         f0_fit = float(np.mean(params["f0"]))

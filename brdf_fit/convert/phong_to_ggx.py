@@ -53,6 +53,7 @@ import numpy as np
 
 from brdf_fit import registry
 from brdf_fit.convert import phong as cp
+from brdf_fit.convert.error import radiance_error
 from brdf_fit.core.frame import unit_from_angles, zenith_states_deg
 from brdf_fit.data import GonioData
 from brdf_fit.fitting.single import METRICS, RELATIVE_FLOOR, fit
@@ -273,7 +274,7 @@ def _one(source: str, n: float, metric: str, max_zenith_deg: float,
     c = wi[:, 2]
     core = f >= CORE_FRACTION * f.max()
     alpha_fit = float(np.asarray(r.params["alpha"]))
-    rad = float(np.sqrt(np.sum(((m - f) * c) ** 2) / np.sum((f * c) ** 2)))
+    rad = radiance_error(f, m, wi)
     return PhongToGGXRow(
         exponent=float(n),
         blinn_phong_exponent=nb,
