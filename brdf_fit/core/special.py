@@ -13,8 +13,9 @@ Value: the continued fraction of I_x(a, b) (Abramowitz & Stegun 26.5.8; evaluate
 Lentz algorithm as in Press et al., *Numerical Recipes*, 3rd ed., sec. 6.4, ``betacf``), used for
 ``x < (a + 1)/(a + b + 2)`` where it converges fast, and the symmetry
 ``I_x(a, b) = 1 - I_(1-x)(b, a)`` otherwise. The prefactor ``x^a (1-x)^b / (a B(a, b))`` is formed
-in logarithms with a cancellation-free ``log B`` (:func:`betaln`), so ``a`` up to 1e6 keeps its
-precision even in float32.
+in logarithms with a cancellation-free ``log B`` (:func:`betaln`) and the logarithm of whichever
+of ``x``, ``1 - x`` is near 1 taken as ``log1p`` of minus the other (both are passed), so ``a`` up
+to 1e6 keeps its precision even in float32.
 
 Derivatives in ``a`` and ``b``: forward-mode differentiation of the same continued fraction,
 carried by hand inside the Lentz loop (dual numbers for the partial numerators and the Lentz
@@ -206,13 +207,25 @@ def _cf_dual(a, b, x):
     return log_h, sign, lh_a, lh_b
 
 
+def _log_pair(x, y):
+    """``(log x, log y)`` for ``x + y = 1`` given both: the logarithm of the one near 1 is
+    ``log1p`` of minus the other, which is exact where ``x`` itself is only rounded to 1. At
+    ``a = 5e5``, ``y = 1e-6`` in float32, ``a log x`` from the rounded ``x`` is off by up to 6%
+    of its value (the spacing of float32 near 1 is 6e-8); via ``log1p(-y)`` it keeps float32
+    precision (the Phong normaliser at n = 1e6, cos 1e-3: 2.1e-3 relative error before)."""
+    log_x = jnp.where(x > 0.5, jnp.log1p(-jnp.where(x > 0.5, y, 0.0)), jnp.log(x))
+    log_y = jnp.where(y > 0.5, jnp.log1p(-jnp.where(y > 0.5, x, 0.0)), jnp.log(y))
+    return log_x, log_y
+
+
 def _front_cf(a, b, x, y):
     """``I_x(a, b)`` by the continued fraction for 0 < x, y = 1 - x, and its a/b partials."""
     log_h, sign, lh_a, lh_b = _cf_dual(a, b, x)
-    log_front = a * jnp.log(x) + b * jnp.log(y) - jnp.log(a) - betaln(a, b)
+    log_x, log_y = _log_pair(x, y)
+    log_front = a * log_x + b * log_y - jnp.log(a) - betaln(a, b)
     val = sign * jnp.exp(log_front + log_h)
-    dlog_a = jnp.log(x) - 1.0 / a + _digamma_diff(a, b) + lh_a
-    dlog_b = jnp.log(y) + _digamma_diff(b, a) + lh_b
+    dlog_a = log_x - 1.0 / a + _digamma_diff(a, b) + lh_a
+    dlog_b = log_y + _digamma_diff(b, a) + lh_b
     return val, val * dlog_a, val * dlog_b
 
 
@@ -233,7 +246,8 @@ def _betainc_parts(a, b, x, y):
     i_val = jnp.where(direct, val, 1.0 - val)
     i_a = jnp.where(direct, dp, -dq)
     i_b = jnp.where(direct, dq, -dp)
-    i_x = jnp.exp((a - 1.0) * jnp.log(xs) + (b - 1.0) * jnp.log(ys) - betaln(a, b))
+    log_xs, log_ys = _log_pair(xs, ys)
+    i_x = jnp.exp((a - 1.0) * log_xs + (b - 1.0) * log_ys - betaln(a, b))
     # edges: I_0 = 0, I_1 = 1; dI/dx there is its limit where finite, else 0
     at0 = x <= 0
     lim0 = jnp.where(a == 1.0, jnp.exp(-betaln(a, b)), 0.0)

@@ -99,6 +99,22 @@ def test_float32_large_a_finite():
         assert np.all(np.isfinite(np.asarray(g)))
 
 
+def test_float32_near_one_uses_the_exact_complement():
+    """Issue 16 (float32 over every interval): with ``x = 1 - y`` rounded to float32 near 1, the
+    prefactor's ``a log x`` at a = 5e5 was formed from the rounded ``x`` (6% off in ``1 - x`` at
+    y = 1e-6), 2.1e-3 relative error in I. It is now ``a log1p(-y)``: float32 agrees with
+    float64 (SciPy) given the same, exactly representable ``y``."""
+    from brdf_fit.core.special import betainc_complement
+
+    y64 = np.array([1e-6, 2e-6, 1e-5, 1e-7])
+    y = y64.astype(np.float32).astype(np.float64)  # the float32 values, exactly
+    a = np.array([5e5, 5e5, 5e4, 5e6])
+    ref = sp.betainc(a, 0.5, 1.0 - y)
+    f32 = betainc_complement(jnp.asarray(a, jnp.float32), jnp.float32(0.5),
+                             jnp.asarray(1.0 - y, jnp.float32), jnp.asarray(y, jnp.float32))
+    np.testing.assert_allclose(np.asarray(f32, np.float64), ref, rtol=1e-5)
+
+
 def test_log_gamma_helpers():
     z = np.array([0.5, 3.0, 9.99, 10.0, 50.0, 5e5, 1e6])
     w = np.array([0.5, 0.5, 2.0, 0.5, 50.0, 0.5, 1e6])

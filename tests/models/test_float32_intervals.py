@@ -56,11 +56,6 @@ FRACTIONS = np.array([0.0, 1e-6, 1e-3, 0.1, 0.5, 0.9, 1 - 1e-3, 1 - 1e-6, 1.0])
 #: entries whose float32 evaluation disagrees with float64 somewhere in an interval, with the
 #: measured discrepancy (the largest |f32 - f64| over the tolerance, > 1, in the sweep)
 KNOWN_F32_FAILURES: dict[str, str] = {
-    "phong-energy-normalized": (
-        "exponent 9e5..1e6, grazing mirror pair (cos 1e-3): f32 1.17778e8 vs f64 1.17532e8, "
-        "2.1e-3 relative (2.09 x tolerance); the error is the Mallett-Yuksel normaliser "
-        "brdf_fit.core.phong_normaliser.normaliser(1e-3, 1e6): f32 6.7925e-9 vs f64 6.8067e-9 "
-        "(-2.1e-3; -4.5e-5 at n = 1e5), in brdf_fit/core, not this model's code"),
     "poulin-fournier": (
         "spacing 0.052 (0.001 of its interval), wi = wo grazing across the cylinders "
         "(0, 1, 0.001): f32 0.649677 vs f64 0.648910, 1.18e-3 relative (1.18 x tolerance); "
