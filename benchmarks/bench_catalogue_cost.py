@@ -21,6 +21,12 @@ per-call overheads included); treat them as an ordering only.
 Writes ``catalogue_cost.md`` and ``catalogue_cost.json`` to ``--out`` and the JSON also to
 ``brdf_fit/resources/catalogue_cost.json``, which the catalogue table reads
 (``brdf-fit catalogue --write-readme README.md``).
+
+``--entries NAME ...`` times only those entries and ``lambert`` (same method, ratios against
+``lambert`` in that run) and merges their rows into ``brdf_fit/resources/catalogue_cost.json``
+(``--out``'s JSON with ``--no-package-data``); the other rows and the full run's reports are
+kept, and the partial run is recorded under ``partial_runs``: how an entry added after the last
+full run gets its cost without re-timing the whole registry.
 """
 
 from __future__ import annotations
@@ -61,7 +67,11 @@ def main(argv=None) -> int:
     ap.add_argument("--no-package-data", dest="write_package_data", action="store_false",
                     help="do not copy the JSON to brdf_fit/resources/catalogue_cost.json "
                          "(which the README's catalogue table reads)")
+    ap.add_argument("--entries", nargs="+", default=None, metavar="NAME",
+                    help="time only these entries (and lambert) and merge their rows into the "
+                         "existing JSON files")
     args = ap.parse_args(argv)
+    only = None if args.entries is None else {"lambert", *args.entries}
     dtype = jnp.float32 if args.float32 else jnp.float64
     info = machine_info()
     rng = np.random.default_rng(20261201)
@@ -70,7 +80,7 @@ def main(argv=None) -> int:
 
     fns = {}
     for e in registry.entries():
-        if "delta" in e.tags:
+        if "delta" in e.tags or (only is not None and e.name not in only):
             continue
         params = {k: jnp.asarray(v, dtype) for k, v in e.defaults().items()}
 
@@ -104,6 +114,8 @@ def main(argv=None) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     cmd = "python benchmarks/bench_catalogue_cost.py " + shlex.join(argv or sys.argv[1:])
+    if only is not None:
+        return _merge(args, cmd.strip(), info, best, rel, names, out)
     doc = {
         "command": cmd.strip(),
         "machine": info,
@@ -155,6 +167,28 @@ def main(argv=None) -> int:
     lines += ["", "Raw numbers: `catalogue_cost.json`.", ""]
     (out / "catalogue_cost.md").write_text("\n".join(lines))
     print("\n".join(lines))
+    return 0
+
+
+def _merge(args, cmd, info, best, rel, names, out) -> int:
+    """Merge the rows of a partial run (``--entries``) into the existing JSON files."""
+    new = [n for n in names if n != "lambert"]
+    run = {"command": cmd, "date_utc": info["date_utc"], "loadavg_start": info["loadavg_start"],
+           "loadavg_end": info["loadavg_end"], "n": args.n, "rounds": args.rounds,
+           "lambert_eval_seconds": best["lambert"][0], "entries": new}
+    # the package data by default (what the catalogue reads); the full run's report in --out is
+    # left as it was measured
+    targets = [catalogue.COST_FILE] if args.write_package_data else [out / "catalogue_cost.json"]
+    for path in targets:
+        doc = json.loads(path.read_text())
+        for n in new:
+            doc["seconds"][n] = {"eval": best[n][0], "eval_grad": best[n][1]}
+            doc["relative"][n] = rel[n]
+        doc.setdefault("partial_runs", []).append(run)
+        path.write_text(json.dumps(doc, indent=1) + "\n")
+    for n in new:
+        print(f"{n}: eval {rel[n]['eval']:.2f}x, eval+grad {rel[n]['eval_grad']:.2f}x lambert "
+              f"({best[n][0] / args.n * 1e9:.1f} ns per pair)")
     return 0
 
 

@@ -56,6 +56,7 @@ from brdf_fit.models import (
     strauss,
     torrance_sparrow,
     ward,
+    westin,
 )
 
 __all__ = ["Param", "Entry", "get", "names", "entries", "register", "UnknownModelError"]
@@ -446,6 +447,7 @@ FAMILY_MODULES = (
     hanrahan_krueger,
     poulin_fournier,
     kajiya,
+    westin,
 )
 
 for _module in FAMILY_MODULES:

@@ -70,7 +70,7 @@ MONTES_URENA: tuple[CatalogueRow, ...] = (
     CatalogueRow("Blinn-Phong", 1977, 9.18),
     CatalogueRow("Cook-Torrance", 1982, 16.9),
     CatalogueRow("Kajiya", 1985, None,
-                 "needs Kirchhoff integrals over tabulated micro-geometry "
+                 "Kirchhoff integrals over a tabulated micro-geometry "
                  "(docs/catalogue_numerical.md)"),
     CatalogueRow("Poulin-Fournier", 1990, 67.0,
                  "integration over cylinder cross-sections (docs/catalogue_numerical.md)"),
@@ -78,7 +78,7 @@ MONTES_URENA: tuple[CatalogueRow, ...] = (
     CatalogueRow("He-Torrance-Sillion-Greenberg", 1991, 120.0),
     CatalogueRow("Ward", 1992, 7.9),
     CatalogueRow("Westin", 1992, None,
-                 "a Monte Carlo micro-geometry simulation fitted to spherical harmonics "
+                 "a Monte Carlo micro-geometry simulation tabulated as bin averages "
                  "(docs/catalogue_numerical.md)"),
     CatalogueRow("Lewis", 1993, 10.73),
     CatalogueRow("Hanrahan-Krueger", 1993, None),
