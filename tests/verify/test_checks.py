@@ -15,9 +15,24 @@ from brdf_fit.models import Lambert
 from brdf_fit.verify import checks
 
 ENTRIES = registry.entries()
+#: The Phong family runs every check, chi-square included, at exponent 100 by default (and at
+#: 1 ... 10000 in the slow set) in tests/verify/test_phong_checks.py, which holds its declared
+#: failures to failing too; running its checks again here at the default exponent repeated the
+#: suite's most expensive checks (the exact normalisers) for no new contract.
+PHONG_CHECKED_ELSEWHERE = {
+    "phong-original", "modified-phong", "modified-phong-fresnel", "blinn-phong",
+    "blinn-phong-approx", "phong-energy-normalized", "phong-energy-normalized-arvo",
+}
+CHECKED = [e for e in ENTRIES if e.name not in PHONG_CHECKED_ELSEWHERE]
 
 
-@pytest.mark.parametrize("entry", ENTRIES, ids=[e.name for e in ENTRIES])
+def test_the_phong_family_is_checked_in_its_own_file():
+    from test_phong_checks import PHONG
+
+    assert PHONG_CHECKED_ELSEWHERE == set(PHONG)
+
+
+@pytest.mark.parametrize("entry", CHECKED, ids=[e.name for e in CHECKED])
 def test_registry_models_pass_or_declare(entry):
     # the hard-case grid ('finite') and chi-square have their own, larger tests
     # (tests/test_hard_cases.py, tests/test_sampling.py); here the rest of the suite
