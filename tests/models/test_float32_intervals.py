@@ -55,13 +55,10 @@ FRACTIONS = np.array([0.0, 1e-6, 1e-3, 0.1, 0.5, 0.9, 1 - 1e-3, 1 - 1e-6, 1.0])
 
 #: entries whose float32 evaluation disagrees with float64 somewhere in an interval, with the
 #: measured discrepancy (the largest |f32 - f64| over the tolerance, > 1, in the sweep)
-KNOWN_F32_FAILURES: dict[str, str] = {
-    "poulin-fournier": (
-        "spacing 0.052 (0.001 of its interval), wi = wo grazing across the cylinders "
-        "(0, 1, 0.001): f32 0.649677 vs f64 0.648910, 1.18e-3 relative (1.18 x tolerance); "
-        "not diagnosed further (likely the short visible arc at grazing, whose ends are "
-        "float32-rounded angles where the integrand vanishes)"),
-}
+#: (none: phong-energy-normalized was the incomplete beta's prefactor near x = 1, fixed in
+#: core/special.py; poulin-fournier was its closed-form diffuse integral and occlusion limit,
+#: both differences of nearly equal terms at grazing, rewritten in models/poulin_fournier.py)
+KNOWN_F32_FAILURES: dict[str, str] = {}
 
 
 def sweep(p):
