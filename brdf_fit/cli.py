@@ -11,6 +11,7 @@
                  [--guess grid|none] [--multistart K] [--check NAME ...] [--json]
     brdf-fit fit-batch DATA... --model NAME [--fix ...] [--init ...] [--metric ...]
                  [--guess grid|none] [--skip-bad] [--out FILE.csv|.json] [--json] [--quiet]
+                 [--out-dir DIR [--block-size N] [--resume]]
     brdf-fit demo [--out DIR] [--json]
     brdf-fit select DATA [--candidates A,B,..|--family NAME] [--budget X] [--plot PNG] [--json]
     brdf-fit plot MODEL [MODEL ...] [--param NAME=VALUE] [--data FILE [--fit]] -o PNG
@@ -573,6 +574,89 @@ def _write_batch_table(rows, path: str) -> None:
         w.writerows(flat)
 
 
+def _fit_batch_streamed(args, entry, fix, init) -> int:
+    """``fit-batch --out-dir DIR``: the files are read block by block (``--block-size``
+    files at a time, default from a 512 MB budget) and fitted by
+    :func:`brdf_fit.fitting.stream.fit_stream`, which writes each finished block to DIR
+    (``block_*.npz``, ``manifest.json``; ``files.txt`` lists the files in order). A killed run
+    restarted with ``--resume`` fits only the blocks not written yet. All files must be
+    readable and share one sample count, channel count and sigma-or-not (checked per block;
+    the blocks written before a bad file are kept)."""
+    import hashlib
+    import pathlib
+
+    from brdf_fit.fitting.stream import fit_stream
+
+    if args.skip_bad:
+        raise CLIError("--skip-bad is not available with --out-dir (every file is needed)")
+    out = pathlib.Path(args.out_dir)
+    if out.exists() and not out.is_dir():
+        raise CLIError(f"{args.out_dir}: --out-dir names an existing file, not a folder")
+    parent = out.parent if str(out.parent) else pathlib.Path(".")
+    if not out.exists() and not parent.is_dir():
+        raise CLIError(f"{args.out_dir}: cannot write: folder {str(parent)!r} does not exist")
+    if args.out is not None:
+        check_output_file(args.out, (".csv", ".json"), "--out")
+    if (out / "manifest.json").exists() and not args.resume:
+        raise CLIError(f"{args.out_dir}: holds a previous run; --resume continues it (or "
+                       "choose a new folder)")
+    paths = list(args.data)
+    first = read_data(paths[0])
+    first.validate()
+    shape = (first.n, first.channels, first.sigma is not None)
+
+    def source(s, e):
+        blk = []
+        for path in paths[s:e]:
+            d = first if path == paths[0] and s == 0 else read_data(path)
+            d.validate()
+            if (d.n, d.channels, d.sigma is not None) != shape:
+                raise CLIError(f"{path}: {d.n} samples, channels {','.join(d.channels)}"
+                               f"{', sigma' if d.sigma is not None else ''}; --out-dir needs "
+                               f"every file like {paths[0]} ({shape[0]} samples, channels "
+                               f"{','.join(shape[1])}{', sigma' if shape[2] else ''})")
+            blk.append(d)
+        return {"wi": np.stack([d.wi for d in blk]), "wo": np.stack([d.wo for d in blk]),
+                "values": np.stack([d.value for d in blk]),
+                "weight": np.stack([d.weight for d in blk]),
+                "sigma": np.stack([d.sigma for d in blk]) if shape[2] else None}
+
+    digest = hashlib.sha256("\n".join(paths).encode()).hexdigest()
+    bar = _BatchProgress(f"{entry.name}, {len(paths)} file(s) of {first.n} samples",
+                         enabled=not args.quiet)
+    try:
+        res = fit_stream(source, entry.name, out, n_problems=len(paths),
+                         block_size=args.block_size, resume=args.resume, progress=bar,
+                         meta={"files": digest, "n_files": len(paths)},
+                         fix=fix, init=init, metric=args.metric, cos_weight=args.cos_weight,
+                         max_zenith_deg=args.max_zenith_deg, max_steps=args.max_steps,
+                         guess=args.guess)
+    finally:
+        bar.close()
+    (out / "files.txt").write_text("\n".join(paths) + "\n")
+    full = res.result()
+    rows = _batch_rows(paths, full, first.channels)
+    _flag_rows(rows)
+    if args.out is not None:
+        _write_batch_table(rows, args.out)
+    conv = float(np.mean(full.converged))
+    summary = {"model": entry.name, "out_dir": str(out), "files": len(paths),
+               "blocks": res.n_blocks, "block_size": res.block_size, "fitted": res.fitted,
+               "skipped": res.skipped, "converged": conv,
+               "not_converged": [r["file"] for r in rows if not r["converged"]][:100],
+               "seconds": round(res.seconds, 3)}
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    else:
+        print(f"{entry.name} fitted to {len(paths)} file(s), metric {args.metric}, in "
+              f"{res.n_blocks} block(s) of {res.block_size} ({len(res.fitted)} fitted now, "
+              f"{len(res.skipped)} already written); converged {100 * conv:.2f}%")
+        print(f"wrote {out}/ (block_*.npz, manifest.json, files.txt)")
+        if args.out is not None:
+            print(f"wrote {args.out}")
+    return 0 if conv == 1.0 else 1
+
+
 def cmd_fit_batch(args) -> int:
     _x64()
     from brdf_fit.fitting.batch import fit_batch
@@ -584,6 +668,10 @@ def cmd_fit_batch(args) -> int:
     both = sorted(set(fix) & set(init))
     if both:
         raise CLIError(f"parameter(s) {', '.join(both)} given both --fix and --init")
+    if args.out_dir is not None:
+        return _fit_batch_streamed(args, entry, fix, init)
+    if args.resume or args.block_size is not None:
+        raise CLIError("--resume and --block-size need --out-dir (the streamed path)")
     if args.out is not None:
         check_output_file(args.out, (".csv", ".json"), "--out")
     good, bad = _read_many(args.data, args.skip_bad)
@@ -1296,6 +1384,14 @@ def build_parser() -> argparse.ArgumentParser:
                     help="write one row per file to FILE (.csv or .json)")
     fb.add_argument("--json", action="store_true", help="print the per-file results as JSON")
     fb.add_argument("--quiet", action="store_true", help="no progress bar")
+    fb.add_argument("--out-dir", default=None, metavar="DIR",
+                    help="stream: read and fit the files block by block, writing each "
+                         "finished block to DIR (block_*.npz, manifest.json); for many files")
+    fb.add_argument("--block-size", type=_positive_int, default=None, metavar="N",
+                    help="with --out-dir: files per block (default: from a 512 MB budget)")
+    fb.add_argument("--resume", action="store_true",
+                    help="with --out-dir: continue a killed run, fitting only the blocks not "
+                         "written yet")
     fb.set_defaults(func=cmd_fit_batch)
 
     d = sub.add_parser("demo", help="the main job on an embedded default (no input needed)")

@@ -30,8 +30,9 @@ import numpy as np
 from brdf_fit.fitting.problem import stderr_codes
 from brdf_fit.fitting.single import covariance_normal, solve
 
-__all__ = ["LMState", "directions", "tangents", "normal", "quad", "lm_init", "lm_chunk",
-           "optx_chunk", "finalise_one", "finalise_state", "grouped"]
+__all__ = ["LMState", "gather", "data_axes", "lanes", "directions", "tangents", "normal",
+           "quad", "lm_init", "lm_chunk", "optx_chunk", "finalise_one", "finalise_state",
+           "grouped"]
 
 #: Initial damping of batch-lm relative to max(diag(J^T J)) (Madsen, Nielsen & Tingleff,
 #: "Methods for non-linear least squares problems", DTU 2004, section 3.2: 1e-6 for a good start,
@@ -75,14 +76,22 @@ class LMState(eqx.Module):
     g: Any = None  # (B, p) J^T r at u
     meat: Any = None  # (B, p, p) J^T diag(r^2) J at u (zeros unless the sandwich is used)
     budget: Any = None  # (B,) int32: the chunk's length, carried with the lanes
+    #: (B,) int32: the most iterations of each lane (fit_batch's max_steps), data rather than a
+    #: static argument, so that one compilation serves every max_steps
+    limit: Any = None
+    #: (B, 2): batch-lm's ``rtol, atol`` per lane (data, like ``limit``: one compilation for
+    #: every tolerance)
+    tol: Any = None
 
     @classmethod
-    def start(cls, u, dtype) -> LMState:
+    def start(cls, u, dtype, max_steps: int, rtol: float = 0.0, atol: float = 0.0) -> LMState:
         """The state before the first iteration at the starts ``u`` (B, p) (NumPy)."""
         B, p = u.shape
         return cls(u=u.astype(dtype), lam=np.full(B, -1.0, dtype), nu=np.full(B, 2.0, dtype),
                    scale=np.zeros((B, p), dtype), steps=np.zeros(B, np.int32),
-                   done=np.zeros(B, bool), ok=np.zeros(B, bool))
+                   done=np.zeros(B, bool), ok=np.zeros(B, bool),
+                   limit=np.full(B, max_steps, np.int32),
+                   tol=np.broadcast_to(np.asarray([rtol, atol], dtype), (B, 2)).copy())
 
     def with_quad(self, q) -> LMState:
         """The state with batch-lm's carried ``(cost, A, g, meat)`` set (NumPy copies)."""
@@ -175,6 +184,30 @@ def quad(problem, dq, u, prep, fx, sandwich):
 # ----------------------------------------------------------------------------- groups
 
 
+def gather(data, idx):
+    """The problems ``idx`` of every leaf of the prepared ``data`` (leaves (B, M, k)). A leaf
+    with a leading axis of 1 is shared by all problems (one geometry ``wi, wo`` for the whole
+    batch, and the terms prepared from it alone, e.g. ``log``'s ``cos``): it is returned
+    without a lane axis, (M, k), and vmapped with ``in_axes=None`` (:func:`data_axes`), so the
+    geometry-only part of the model (half vectors, cosines, the Fresnel factor's
+    ``(1 - cos)^5``) is computed once per group and step, not once per lane. (With one
+    problem every index is 0, and the two agree.)"""
+    return jax.tree.map(lambda x: x[0] if x.shape[0] == 1 else x[idx], data)
+
+
+def data_axes(a):
+    """``in_axes`` of gathered data (:func:`gather`): 0 for per-lane leaves (3-D), None for
+    shared ones (2-D)."""
+    return jax.tree.map(lambda x: None if x.ndim == 2 else 0, a)
+
+
+def lanes(fn, data_pos: int, args):
+    """``jax.vmap(fn)(*args)`` with the gathered data at ``args[data_pos]`` mapped by
+    :func:`data_axes`."""
+    axes = tuple(data_axes(x) if i == data_pos else 0 for i, x in enumerate(args))
+    return jax.vmap(fn, in_axes=axes)(*args)
+
+
 def grouped(fn, tree, group, idx=None, data=None):
     """Apply ``fn`` (which takes a batch of ``group`` lanes) to consecutive groups of ``group``
     lanes of ``tree`` (leading axis a multiple of ``group``), one group after another
@@ -199,8 +232,7 @@ def grouped(fn, tree, group, idx=None, data=None):
     if data is None:
         out = jax.lax.map(fn, split)
     else:
-        out = jax.lax.map(lambda t: fn(t[0], jax.tree.map(lambda x: x[t[1]], data)),
-                          (split, rows(idx)))
+        out = jax.lax.map(lambda t: fn(t[0], gather(data, t[1])), (split, rows(idx)))
     return jax.tree.map(lambda x: x.reshape((k * group, *x.shape[2:])), out)
 
 
@@ -213,11 +245,11 @@ def lm_init(problem, group, sandwich, idx, data, u, fixed):
 
     def g(t, a):
         uu, fx = t
-        return jax.vmap(lambda x, y, z: quad(problem, dq, x, y, z, sandwich))(uu, a, fx)
+        return lanes(lambda x, y, z: quad(problem, dq, x, y, z, sandwich), 1, (uu, a, fx))
     return grouped(g, (u, fixed), group, idx, data)
 
 
-def lm_step(problem, dq, rtol, atol, max_steps, sandwich, s: LMState, a, fx) -> LMState:
+def lm_step(problem, dq, sandwich, s: LMState, a, fx) -> LMState:
     """One batch-lm iteration of one lane (vmapped by :func:`lm_chunk`); a lane that is done
     or out of steps keeps its state.
 
@@ -228,7 +260,8 @@ def lm_step(problem, dq, rtol, atol, max_steps, sandwich, s: LMState, a, fx) -> 
     at machine precision), counted as converged only if the residual is orthogonal to the
     Jacobian columns (MINPACK's gtol test, :data:`GTOL_SQRT_EPS`)."""
     dtype = s.u.dtype
-    active = ~s.done & (s.steps < max_steps)
+    rtol, atol = s.tol[0], s.tol[1]
+    active = ~s.done & (s.steps < s.limit)
     cost, A, g = s.cost, s.A, s.g
     d = jnp.diagonal(A)
     if MARQUARDT_SCALING:
@@ -282,11 +315,13 @@ def lm_step(problem, dq, rtol, atol, max_steps, sandwich, s: LMState, a, fx) -> 
         g=jnp.where(keep, g_new, g),
         meat=jnp.where(keep, meat_new, s.meat),
         budget=s.budget,
+        limit=s.limit,
+        tol=s.tol,
     )
     return jax.tree.map(lambda n, o: jnp.where(active, n, o), new, s)
 
 
-def lm_chunk(problem, rtol, atol, max_steps, n_steps, group, sandwich, idx, data,
+def lm_chunk(problem, n_steps, group, sandwich, idx, data,
              state: LMState, fixed) -> LMState:
     """Up to ``n_steps`` batch-lm iterations on a batch (leading axis on every leaf; None: each
     lane's ``state.budget``). The batch is taken in groups of ``group`` lanes (see
@@ -294,8 +329,9 @@ def lm_chunk(problem, rtol, atol, max_steps, n_steps, group, sandwich, idx, data
     members are done: a converged problem costs iterations only until the slowest member of its
     group stops, not of the whole batch."""
     dq = directions(problem, data[3].shape[-1])
-    one_b = jax.vmap(lambda s, a, fx: lm_step(problem, dq, rtol, atol, max_steps, sandwich,
-                                              s, a, fx))
+
+    def one_b(s, a, fx):
+        return lanes(lambda s, a, fx: lm_step(problem, dq, sandwich, s, a, fx), 1, (s, a, fx))
 
     def run_group(t, a):
         s, fx = t
@@ -305,7 +341,7 @@ def lm_chunk(problem, rtol, atol, max_steps, n_steps, group, sandwich, idx, data
             # the chunk length travels with the lanes (every leaf is batch-sharded), so one
             # compiled chunk serves every length of the schedule
             limit = jnp.max(s.budget) if n_steps is None else n_steps
-            return (k < limit) & jnp.any(~s.done & (s.steps < max_steps))
+            return (k < limit) & jnp.any(~s.done & (s.steps < s.limit))
 
         def body(c):
             k, s = c
@@ -316,7 +352,7 @@ def lm_chunk(problem, rtol, atol, max_steps, n_steps, group, sandwich, idx, data
     return grouped(run_group, (state, fixed), group, idx, data)
 
 
-def optx_chunk(problem, solver, rtol, atol, max_steps, n_steps, idx, data, state: LMState,
+def optx_chunk(problem, solver, rtol, atol, n_steps, idx, data, state: LMState,
                fixed) -> LMState:
     """``n_steps`` of an optimistix solver (:func:`brdf_fit.fitting.single.solve`), restarted
     from the current iterate (optimistix does not expose its state between solves)."""
@@ -325,11 +361,11 @@ def optx_chunk(problem, solver, rtol, atol, max_steps, n_steps, idx, data, state
         prob = problem.with_fixed(fx)
         u, ok, k = solve(prob, s.u, a, solver, rtol, atol, n_steps, residuals=lambda v, aa:
                          prob.residuals_prepared(prob.unflatten(v), aa).reshape(-1))
-        active = ~s.done & (s.steps < max_steps)
+        active = ~s.done & (s.steps < s.limit)
         new = dataclasses.replace(s, u=u, steps=s.steps + k.astype(jnp.int32), done=ok, ok=ok)
         return jax.tree.map(lambda n, o: jnp.where(active, n, o), new, s)
 
-    return jax.vmap(one)(state, jax.tree.map(lambda x: x[idx], data), fixed)
+    return lanes(one, 1, (state, gather(data, idx), fixed))
 
 
 # ----------------------------------------------------------------------------- finalisation

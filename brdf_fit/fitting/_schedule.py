@@ -24,6 +24,7 @@ from brdf_fit.fitting._lm import (
     finalise_one,
     finalise_state,
     grouped,
+    lanes,
     lm_chunk,
     lm_init,
     optx_chunk,
@@ -83,7 +84,7 @@ class Runner:
     of ``jax.devices()`` and every call runs under ``shard_map`` (the data replicated, every
     per-lane argument split along the batch)."""
 
-    def __init__(self, problem, solver, rtol, atol, max_steps, shard, group, sigma):
+    def __init__(self, problem, solver, rtol, atol, shard, group, sigma):
         self.devices = jax.devices() if shard else jax.devices()[:1]
         self.ndev = len(self.devices)
         self.mesh = Mesh(np.asarray(self.devices), ("batch",)) if self.ndev > 1 else None
@@ -94,17 +95,17 @@ class Runner:
         sandwich = not sigma
         if solver == "batch-lm":
             def chunk(n_steps, i, d, s, fx):
-                return lm_chunk(problem, rtol, atol, max_steps, n_steps, group, sandwich,
+                return lm_chunk(problem, n_steps, group, sandwich,
                                 i, d, s, fx)
         else:
             def chunk(n_steps, i, d, s, fx):
-                return optx_chunk(problem, solver, rtol, atol, max_steps, n_steps, i, d, s, fx)
+                return optx_chunk(problem, solver, rtol, atol, n_steps, i, d, s, fx)
 
         def fin(i, d, u, m_eff, fx):
             def one(t, a):
                 uu, mm, ff = t
-                return jax.vmap(lambda x, y, z, w: finalise_one(
-                    problem, x, y, z, w, sandwich))(uu, a, mm, ff)
+                return lanes(lambda x, y, z, w: finalise_one(
+                    problem, x, y, z, w, sandwich), 1, (uu, a, mm, ff))
             return grouped(one, (u, m_eff, fx), group, i, d)
 
         def init(i, d, u, fx):
@@ -193,12 +194,12 @@ class Runner:
 
             def one(t, a):
                 c, fx = t
-                u = jax.vmap(best)(c, a[0], fx)
+                u = lanes(best, 1, (c, a[0], fx))
                 if not lm:
                     return u, ()
                 dq = directions(problem, a[1][3].shape[-1])
-                return u, jax.vmap(lambda x, y, z: quad(problem, dq, x, y, z, sandwich))(
-                    u, a[1], fx)
+                return u, lanes(lambda x, y, z: quad(problem, dq, x, y, z, sandwich), 1,
+                                (u, a[1], fx))
 
             def guess(i, d, c, fx):
                 return grouped(one, (c, fx), group, i, d)
@@ -210,16 +211,19 @@ class Runner:
 _RUNNERS: dict = {}
 
 
-def runner(problem, solver, rtol, atol, max_steps, shard, group, sigma) -> Runner:
+def runner(problem, solver, rtol, atol, shard, group, sigma) -> Runner:
     """The :class:`Runner` of this static problem and these options (cached: a later call with
     the same ones reuses its compiled functions)."""
-    key = (problem.key, solver, float(rtol), float(atol), int(max_steps), shard,
+    if solver == "batch-lm":  # its tolerances and max_steps are data (LMState.tol, .limit)
+        rtol = atol = None
+    key = (problem.key, solver, rtol if rtol is None else float(rtol),
+           atol if atol is None else float(atol), shard,
            len(jax.devices()), group, sigma)
     r = _RUNNERS.get(key)
     if r is None:
         if len(_RUNNERS) >= MAX_RUNNERS:
             _RUNNERS.pop(next(iter(_RUNNERS)))
-        r = _RUNNERS[key] = Runner(problem, solver, rtol, atol, max_steps, shard, group, sigma)
+        r = _RUNNERS[key] = Runner(problem, solver, rtol, atol, shard, group, sigma)
     return r
 
 
@@ -248,7 +252,8 @@ def blocked(runner, fn, idx, block, inputs, data):
 
 def _assign(state: LMState, idx, out: LMState) -> None:
     """``state[idx] = out`` field by field, in place (the fields ``state`` has)."""
-    for name in ("u", "lam", "nu", "scale", "steps", "done", "ok", "cost", "A", "g", "meat"):
+    for name in ("u", "lam", "nu", "scale", "steps", "done", "ok", "cost", "A", "g", "meat",
+                 "limit", "tol"):
         x = getattr(state, name)
         if x is not None:
             x[idx] = getattr(out, name)

@@ -1,6 +1,6 @@
 """Batch fitting: B independent problems sharing one model and one sample count.
 
-    res = fit_batch(wi, wo, values, "ggx")       # wi, wo: (B, M, 3); values: (B, M, C)
+    res = fit_batch(wi, wo, values, "ggx")       # wi, wo: (B, M, 3) or (M, 3); values: (B, M, C)
     res = fit_batch(wi, wo, values, MicrofacetBRDF(GGX(0.3), SmithHeightCorrelated(),
                                                    SchlickFresnel(f0=jnp.full(3, 0.5))))
 
@@ -43,6 +43,26 @@ one vmapped solve pays ``B x max(steps)`` instead of ``sum(steps)``. Three thing
 
 ``benchmarks/bench_fit_batch.py`` measures this against one plain vmapped solve
 (``chunk_steps=None, group=None``).
+
+**Shared geometry.** ``wi, wo`` may be one (M, 3) geometry for every problem (a
+gonioreflectometer measuring every texel of a texture the same way). It is kept once on the
+device, not once per problem, and vmapped with ``in_axes=None``
+(:func:`~brdf_fit.fitting._lm.gather`), so what depends on the directions alone (half vectors,
+cosines, the Fresnel factor's ``(1 - cos)^5``) is computed once per group and step. The fits
+equal those of the same directions repeated per problem up to rounding (losses to 1e-9
+relative, tested).
+
+**One compilation per size class.** Everything a compilation does not need is data: the chunk
+length (``LMState.budget``), ``max_steps`` (``LMState.limit``) and batch-lm's tolerances
+(``LMState.tol``) travel with the lanes, and the data's problem axis is padded to whole blocks
+(repeating the last problem; padding rows are never read), so a batch of 5 and one of 7
+problems, or two calls with different ``rtol`` or ``max_steps``, share one compilation.
+
+**Streaming.** More problems than memory holds (10^6 texels of 300 samples: 20 GB of inputs in
+float64) go through :func:`brdf_fit.fitting.stream.fit_stream`: blocks of one shape taken from
+an array, a memory map or a callable source, a progress bar, each finished block written
+atomically to a folder with a manifest, and a killed run resumed where it stopped
+(``brdf-fit fit-batch --out-dir DIR [--block-size N] [--resume]``).
 
 **Initial guess.** ``guess="grid"`` (default) starts the parameters without an ``init`` value
 from the best of a coarse design evaluated on a subsample (:mod:`brdf_fit.guess`).
@@ -219,6 +239,15 @@ def check_inputs(**arrays) -> None:
                                f"({np.asarray(a[b, m]).tolist()})")
 
 
+def _pad_rows(a, B, rows):
+    """``a`` with its leading problem axis ``B`` padded to ``rows`` by repeating its last
+    row (None, shared (1, ...) arrays and ``rows == B`` unchanged)."""
+    if a is None or rows == B or np.ndim(a) == 0 or np.shape(a)[0] != B:
+        return a
+    a = np.asarray(a)
+    return np.concatenate([a, np.repeat(a[-1:], rows - B, axis=0)])
+
+
 def fit_batch(
     wi,
     wo,
@@ -248,7 +277,8 @@ def fit_batch(
     every problem; parameters named by attribute path, as in
     :func:`~brdf_fit.fitting.single.fit`).
 
-    ``wi``, ``wo``: (B, M, 3); ``values``, ``weight``, ``sigma``: (B, M, C) (or (B, M)).
+    ``wi``, ``wo``: (B, M, 3), or (M, 3) shared by every problem; ``values``, ``weight``,
+    ``sigma``: (B, M, C) (or (B, M)).
     ``fix`` / ``init``: parameter values shared by all problems or per problem (leading axis
     B; see :meth:`~brdf_fit.fitting.problem.ParamSpec.batched_value`). ``free`` / ``bounds``:
     as in :func:`~brdf_fit.fitting.single.fit`. ``max_zenith_deg`` masks samples (weight 0)
@@ -274,9 +304,12 @@ def fit_batch(
     f = np.asarray(values, float)
     if f.ndim == 2:
         f = f[..., None]
-    if wi.ndim != 3 or wi.shape[-1] != 3 or wo.shape != wi.shape or f.shape[:2] != wi.shape[:2]:
-        raise FitError(f"expected wi, wo (B, M, 3) and values (B, M, C); got {wi.shape}, "
-                       f"{wo.shape}, {f.shape}")
+    if wi.ndim == 2 and f.ndim == 3:  # one geometry shared by every problem: kept (1, M, 3)
+        wi, wo = wi[None], wo[None]
+    if (wi.ndim != 3 or wi.shape[-1] != 3 or wo.shape != wi.shape or f.ndim != 3
+            or wi.shape[1] != f.shape[1] or wi.shape[0] not in (1, f.shape[0])):
+        raise FitError(f"expected wi, wo (B, M, 3) or (M, 3) and values (B, M, C); got "
+                       f"{wi.shape}, {wo.shape}, {f.shape}")
     B, M, C = f.shape
     w = None if weight is None else np.broadcast_to(
         np.asarray(weight, float).reshape(f.shape[:2] + (-1,)), f.shape).copy()
@@ -286,7 +319,7 @@ def fit_batch(
     if max_zenith_deg is not None:
         cz = math.cos(math.radians(max_zenith_deg))
         keep = (wi[..., 2] >= cz) & (wo[..., 2] >= cz)
-        w = np.where(keep[..., None], 1.0 if w is None else w, 0.0)
+        w = np.where(np.broadcast_to(keep[..., None], f.shape), 1.0 if w is None else w, 0.0)
     floor = RELATIVE_FLOOR * np.maximum(np.max(np.abs(f), axis=(1, 2)), DATA_SCALE_FLOOR)
     fix = dict(fix or {})
     init = dict(init or {})
@@ -323,7 +356,7 @@ def fit_batch(
     if shard is None:
         shard = len(jax.devices()) > 1
     p = u0.shape[1]
-    state = LMState.start(u0, dtype)
+    state = LMState.start(u0, dtype, max_steps, rtol, atol)
     try:
         schedule = chunk_schedule(chunk_steps, max_steps)
     except ValueError as e:
@@ -331,7 +364,7 @@ def fit_batch(
     rounds = []
     if group is not None and (not isinstance(group, int | np.integer) or group < 1):
         raise FitError(f"group must be a positive int or None, got {group!r}")
-    run = runner(problem, solver, rtol, atol, max_steps, bool(shard),
+    run = runner(problem, solver, rtol, atol, bool(shard),
                  None if group is None else int(group), sg is not None)
     unit = run.unit
     # one block shape per call (compiled once): the whole batch without groups (a plain
@@ -339,6 +372,11 @@ def fit_batch(
     block = (int(math.ceil(B / unit) * unit) if group is None
              else min(bucket(MAX_BLOCK, unit), bucket(B, unit)))
     every = np.arange(B)
+    # the problem axis of the data padded to whole blocks (repeating the last problem; never
+    # read: every lane index is < B), so that every batch of one block-size class has the same
+    # shapes and reuses one compilation (a batch of 5 and one of 7 problems: both 16 rows)
+    rows = int(math.ceil(B / block) * block)
+    raw = tuple(_pad_rows(a, B, rows) for a in raw)
 
     # the data side of the metric once (brdf_fit.fitting.problem.metric_parts), on the device
     data = run.prepare(raw)
@@ -377,9 +415,10 @@ def fit_batch(
                rounds, block, progress)
     ts = time.perf_counter()
     if solver == "batch-lm":  # from the carried normal equations, no model evaluation
-        out = run.finalise_state(state.u, state.cost, state.A, state.meat, m_eff,
-                                 np.full(B, M * C, dtype), fixed)
-        phys, se, loss, rms, codes = jax.tree.map(np.asarray, out)
+        args = (state.u, state.cost, state.A, state.meat, m_eff, np.full(B, M * C, dtype),
+                fixed)  # padded to the data's rows: one compilation per block-size class
+        out = run.finalise_state(*jax.tree.map(lambda a: _pad_rows(a, B, rows), args))
+        phys, se, loss, rms, codes = jax.tree.map(lambda a: np.asarray(a)[:B], out)
     else:
         phys, se, loss, rms, codes = blocked(run, run.finalise, every, block,
                                              whole(state.u, m_eff), data)

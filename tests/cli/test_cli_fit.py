@@ -277,3 +277,37 @@ def test_fit_batch_command(csv_data, tmp_path, capsys):
                  "--skip-bad"]) == 1
     out = capsys.readouterr().out
     assert "skipped:" in out and "bad.csv" in out and "yes" in out
+
+
+def test_fit_batch_streamed_out_dir_and_resume(csv_data, tmp_path, capsys):
+    """fit-batch --out-dir streams the files in blocks (--block-size) to a folder; a second run
+    is refused without --resume and with it fits nothing; the results equal the ordinary
+    path's; a file of another sample count stops the stream, naming it (exit 2)."""
+    files = [str(csv_data)] * 3
+    out = tmp_path / "stream"
+    assert main(["fit-batch", *files, "--model", "ggx", "--out-dir", str(out),
+                 "--block-size", "2", "--json", "--out", str(tmp_path / "t.json")]) == 0
+    cap = capsys.readouterr()
+    doc = json.loads(cap.out)
+    assert doc["blocks"] == 2 and doc["fitted"] == [0, 1] and doc["converged"] == 1.0
+    assert "3/3" in cap.err
+    assert sorted(p.name for p in out.iterdir()) == [
+        "block_000000.npz", "block_000001.npz", "files.txt", "manifest.json"]
+    rows = json.loads((tmp_path / "t.json").read_text())
+    for r in rows:
+        np.testing.assert_allclose(r["params"]["alpha"], 0.23, rtol=1e-7)
+    assert main(["fit-batch", *files, "--model", "ggx", "--out-dir", str(out),
+                 "--block-size", "2", "--quiet"]) == 2
+    one_line_error(capsys, "--resume")
+    assert main(["fit-batch", *files, "--model", "ggx", "--out-dir", str(out),
+                 "--block-size", "2", "--quiet", "--resume", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["fitted"] == [] and doc["skipped"] == [0, 1]
+    assert main(["fit-batch", *files, "--model", "ggx", "--resume", "--quiet"]) == 2
+    one_line_error(capsys, "--out-dir")
+    other = tmp_path / "small.csv"
+    other.write_text("theta_i,phi_i,theta_o,phi_o,brdf\n10,0,20,180,0.5\n20,0,30,180,0.4\n")
+    assert main(["fit-batch", str(csv_data), str(csv_data), str(other), "--model", "ggx",
+                 "--out-dir", str(tmp_path / "s2"), "--block-size", "2", "--quiet"]) == 2
+    one_line_error(capsys, "small.csv", "--out-dir needs every file like")
+    assert (tmp_path / "s2" / "block_000000.npz").exists()  # written before the bad file
