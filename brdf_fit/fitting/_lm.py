@@ -56,6 +56,20 @@ DIV_FLOOR = 1e-300
 #: MINPACK's gtol test: a stuck iterate is a minimum when the largest cosine between the
 #: residual and a Jacobian column is below this many sqrt(eps).
 GTOL_SQRT_EPS = 10.0
+#: Stall: a lane stops, not converged, after this many consecutive accepted steps that each
+#: changed the loss by less than the Cauchy tolerance ``atol + rtol * loss`` (the loss half of
+#: the convergence test passed) while the step itself stayed long (the parameter half failed).
+#: The iterate is then sliding along a direction in which the loss is flat to the tolerance: a
+#: Jacobian column vanishing as a logistic parameter runs onto the plateau of its transform
+#: (an all-black file drives alpha and f0 to their bounds, ``f = 1000`` f0 to 1), where only
+#: LAM_MAX or max_steps ended it (71-256 steps, issue 16). Near a minimum where ``J^T J`` is
+#: non-singular the step shrinks with the loss change and the Newton test passes within a
+#: few steps: measured on 10,000 GGX fits (benchmarks/bench_fit_batch.py), every lane that
+#: converged at an interior minimum had at most 5 such steps in a row; the 24 that ran an f0
+#: channel onto its bound of 1 had 44-56 and now stop at 16, their parameters moved by at most
+#: 4e-9 and their losses by 1e-8 relative. Rejected steps neither count nor reset the streak
+#: (the damping's own stop, LAM_MAX, handles a run of them).
+STALL_STEPS = 16
 
 
 class LMState(eqx.Module):
@@ -82,6 +96,8 @@ class LMState(eqx.Module):
     #: (B, 2): batch-lm's ``rtol, atol`` per lane (data, like ``limit``: one compilation for
     #: every tolerance)
     tol: Any = None
+    #: (B,) int32: consecutive accepted steps of negligible loss change (see STALL_STEPS)
+    stall: Any = None
 
     @classmethod
     def start(cls, u, dtype, max_steps: int, rtol: float = 0.0, atol: float = 0.0) -> LMState:
@@ -90,7 +106,7 @@ class LMState(eqx.Module):
         return cls(u=u.astype(dtype), lam=np.full(B, -1.0, dtype), nu=np.full(B, 2.0, dtype),
                    scale=np.zeros((B, p), dtype), steps=np.zeros(B, np.int32),
                    done=np.zeros(B, bool), ok=np.zeros(B, bool),
-                   limit=np.full(B, max_steps, np.int32),
+                   limit=np.full(B, max_steps, np.int32), stall=np.zeros(B, np.int32),
                    tol=np.broadcast_to(np.asarray([rtol, atol], dtype), (B, 2)).copy())
 
     def with_quad(self, q) -> LMState:
@@ -258,7 +274,9 @@ def lm_step(problem, dq, sandwich, s: LMState, a, fx) -> LMState:
     undamped Gauss-Newton step from the new iterate would pass the same two tests by its
     quadratic model; or when the damping has grown past :data:`LAM_MAX` (every step rejected
     at machine precision), counted as converged only if the residual is orthogonal to the
-    Jacobian columns (MINPACK's gtol test, :data:`GTOL_SQRT_EPS`)."""
+    Jacobian columns (MINPACK's gtol test, :data:`GTOL_SQRT_EPS`); or, not converged, after
+    :data:`STALL_STEPS` accepted steps in a row that changed the loss by less than the tolerance
+    while the step stayed long (a parameter sliding onto the plateau of its transform)."""
     dtype = s.u.dtype
     rtol, atol = s.tol[0], s.tol[1]
     active = ~s.done & (s.steps < s.limit)
@@ -300,6 +318,10 @@ def lm_step(problem, dq, sandwich, s: LMState, a, fx) -> LMState:
     # columns (MINPACK's gtol test, cosine below 10 sqrt(eps))
     cosine = jnp.abs(g) / jnp.maximum(jnp.sqrt(d * 2.0 * cost), DIV_FLOOR)
     conv = conv | (stuck & (jnp.max(cosine) < GTOL_SQRT_EPS * jnp.sqrt(jnp.finfo(dtype).eps)))
+    # stall (STALL_STEPS): accepted steps that leave the loss unchanged to the tolerance while
+    # the iterate still moves; a step that changes the loss by more resets the count
+    stall = jnp.where(accept, jnp.where(small_df & ~conv, s.stall + 1, 0), s.stall)
+    stalled = ~conv & (stall >= STALL_STEPS)
     fac = jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
     keep = accept & active
     new = LMState(
@@ -308,7 +330,7 @@ def lm_step(problem, dq, sandwich, s: LMState, a, fx) -> LMState:
         nu=jnp.where(accept, jnp.asarray(2.0, dtype), NU_GROWTH * s.nu),
         scale=scale,
         steps=s.steps + 1,
-        done=conv | stuck,
+        done=conv | stuck | stalled,
         ok=conv,
         cost=jnp.where(keep, cost_new, cost),
         A=jnp.where(keep, A_new, A),
@@ -317,6 +339,7 @@ def lm_step(problem, dq, sandwich, s: LMState, a, fx) -> LMState:
         budget=s.budget,
         limit=s.limit,
         tol=s.tol,
+        stall=stall,
     )
     return jax.tree.map(lambda n, o: jnp.where(active, n, o), new, s)
 

@@ -253,7 +253,7 @@ def blocked(runner, fn, idx, block, inputs, data):
 def _assign(state: LMState, idx, out: LMState) -> None:
     """``state[idx] = out`` field by field, in place (the fields ``state`` has)."""
     for name in ("u", "lam", "nu", "scale", "steps", "done", "ok", "cost", "A", "g", "meat",
-                 "limit", "tol"):
+                 "limit", "tol", "stall"):
         x = getattr(state, name)
         if x is not None:
             x[idx] = getattr(out, name)

@@ -83,7 +83,13 @@ optimistix's Cauchy test, ``max|du / (atol + rtol |u|)| < 1`` and
 iterate would pass the same two tests by its quadratic model (so the step that would only
 confirm convergence is not taken); or when the damping has grown past ``LAM_MAX`` (every step
 rejected at machine precision), counted as converged only if the residual is orthogonal to the
-Jacobian columns (cosine < 10 sqrt(eps), MINPACK's gtol test).
+Jacobian columns (cosine < 10 sqrt(eps), MINPACK's gtol test); or, not converged, after
+``STALL_STEPS`` = 16 accepted steps in a row that each changed the loss by less than
+``atol + rtol * loss`` while the step stayed long: a parameter sliding onto the plateau of its
+logistic transform, the loss flat to the tolerance. Such lanes (an all-black file, ``f = 1000``
+everywhere, a wild outlier) ran to ``LAM_MAX`` or ``max_steps`` (71-256 steps) and added chunks
+of a few lanes at the end of every batch; interior minima show at most 5 such steps in a row
+(10,000 GGX fits; see :data:`brdf_fit.fitting._lm.STALL_STEPS`).
 
 Any name in :data:`brdf_fit.fitting.single.SOLVERS` (``"lm"``, ...) runs that optimistix
 solver through :func:`brdf_fit.fitting.single.solve`, the solver of

@@ -67,7 +67,7 @@ import numpy as np
 from brdf_fit.core.frame import join, split
 from brdf_fit.core.fresnel import schlick
 from brdf_fit.core.microfacet import Beckmann, reflect_about
-from brdf_fit.core.numerics import ALPHA_MIN, INV_PI, pow5, safe_div, safe_sqrt
+from brdf_fit.core.numerics import ALPHA_MIN, INV_PI, pow5, safe_div, safe_norm3, safe_sqrt
 from brdf_fit.core.params import Channels, Entry, Param, Scalar, bounded
 from brdf_fit.core.quadrature import halfvector_rule
 from brdf_fit.core.table import Table, load_table
@@ -237,8 +237,10 @@ class Kelemen(AbstractBRDF):
         F = schlick(expand_channels(c, ch), self.f0)
         # Kelemen's 1/(H.H), H = l + v unnormalised (= 1/(4 c^2) for unit directions), divided
         # by |H| twice: through c = v.h the float32 gradient at a grazing mirror pair
-        # (|H| = 2e-8) overflowed to NaN, and c clamped at 0 (off-unit pairs) gave 0 (issue 16)
-        hl = jnp.sqrt((ix + ox) ** 2 + (iy + oy) ** 2 + (iz + oz) ** 2)
+        # (|H| = 2e-8) overflowed to NaN, and c clamped at 0 (off-unit pairs) gave 0 (issue 16).
+        # |H| by safe_norm3, whose derivative is H/|H|: through sqrt(|H|^2) the cotangent of
+        # |H|^2 at that pair (alpha = 1e-4) was 6e38, past float32's range, and NaN (issue 16)
+        hl = safe_norm3(ix + ox, iy + oy, iz + oz)
         spec = F * expand_channels(safe_div(safe_div(D, hl), hl), ch)
         one_l = jnp.maximum(1.0 - self._a_s(A, B, iz), 0.0)
         one_v = jnp.maximum(1.0 - self._a_s(A, B, oz), 0.0)

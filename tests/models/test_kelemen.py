@@ -130,3 +130,23 @@ def test_bad_parameters_are_named(bad, name):
 
 def test_entry_metadata():
     assert ENTRY.year == 2001 and ENTRY.catalogue == "Coupled" and ENTRY.sampler
+
+
+
+def test_float32_gradient_is_finite_at_the_grazing_mirror_pair():
+    """Issue 16: at wi = (-1, 0, 1e-8), wo = (1, 0, 1e-8), alpha = 1e-4 (|H| = |wi + wo| =
+    2e-8) the float32 gradient w.r.t. the directions was NaN: sqrt(|H|^2) passed the cotangent
+    of |H|^2 through 1/(2 |H|), 6e38 with RGB rho_m, past float32's range. d/d(wi_z) is
+    ``-3 D 2 H_z/|H|^4`` (three channels of F = 1 at f0 = 0; D = 1/(pi alpha^2) at h = n, where
+    its own derivative vanishes): -2.387e31, finite in float32 (float64 agrees to 1e-7)."""
+    dt = jnp.float32
+    wi = jnp.asarray([-1.0, 0.0, 1e-8], dt)
+    wo = jnp.asarray([1.0, 0.0, 1e-8], dt)
+    p = {"rho_m": jnp.asarray([0.6, 0.4, 0.3], dt), "f0": jnp.asarray(0.0, dt),
+         "alpha": jnp.asarray(1e-4, dt)}
+    g = jax.jit(jax.grad(lambda p, a, b: jnp.sum(Kelemen(**p).eval(a, b)),
+                         argnums=(0, 1, 2)))(p, wi, wo)
+    for x in jax.tree.leaves(g):
+        assert np.all(np.isfinite(np.asarray(x))), g
+    want = -3 * 2 * 2e-8 / (math.pi * 1e-8 * 2e-8**4)
+    np.testing.assert_allclose([float(g[1][2]), float(g[2][2])], [want, want], rtol=1e-5)
