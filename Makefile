@@ -38,6 +38,7 @@ bench: $(STAMP)         ## re-run the committed benchmarks (results in benchmark
 	$(BIN)/python benchmarks/bench_catalogue_cost.py
 	$(BIN)/python benchmarks/bench_fit_batch.py
 	$(BIN)/python benchmarks/bench_select.py
+	$(BIN)/python benchmarks/bench_latency.py
 	$(BIN)/python benchmarks/report.py   # results/REPORT.md + results/report/*.png
 
 clean:

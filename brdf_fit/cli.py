@@ -1527,6 +1527,8 @@ def _user_errors() -> tuple[type[BaseException], ...]:
 #: where compiled XLA programs are kept between runs (JAX's persistent compilation cache)
 CACHE_ENV = "BRDF_FIT_CACHE_DIR"
 NO_CACHE_ENV = "BRDF_FIT_NO_CACHE"
+#: the folder of exported solver programs (brdf_fit.fitting._export.ENV)
+EXPORT_ENV = "BRDF_FIT_EXPORT_DIR"
 
 
 def cache_dir() -> str | None:
@@ -1548,16 +1550,24 @@ def _enable_compilation_cache(enabled: bool) -> None:
     JAX reads when it is first imported (so ``--help`` and argument errors still import no JAX).
     Every program is cached (minimum compile time 0): the CLI's compiles are many and short,
     and a second run of the same command with the same shapes then compiles nothing. Without
-    effect when JAX is already imported (the tests call ``main`` in-process)."""
+    effect when JAX is already imported (the tests call ``main`` in-process). Also names the
+    folder of exported (traced and lowered) solver programs, ``<cache>/exported``
+    (``$BRDF_FIT_EXPORT_DIR``, :mod:`brdf_fit.fitting._export`), so that a warm ``fit`` does
+    not trace the model either; ``--no-cache`` unsets it."""
     import os
 
     path = cache_dir() if enabled else None
-    if path is None or "jax" in sys.modules:
+    if path is None:
+        os.environ.pop(EXPORT_ENV, None)  # --no-cache: no exported programs either
         return
     try:
         os.makedirs(path, exist_ok=True)
     except OSError:
         return  # an unwritable cache is no error: the command runs without it
+    # traced and lowered solver programs (brdf_fit.fitting._export), next to XLA's compiled ones
+    os.environ.setdefault(EXPORT_ENV, os.path.join(path, "exported"))
+    if "jax" in sys.modules:
+        return
     os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", path)
     os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
     os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")

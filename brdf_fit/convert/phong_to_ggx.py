@@ -248,11 +248,31 @@ def _validate(exponents, metric, max_zenith_deg):
     return ex
 
 
+_EVAL = None
+
+
+def _eval(model, wi: np.ndarray, wo: np.ndarray, size: int | None = None) -> np.ndarray:
+    """``model.eval(wi, wo)`` as float64 NumPy, jitted, the directions padded to ``size`` rows
+    (the normal; dropped again) so that every exponent's geometry shares one compiled program
+    per model class. Eagerly, each of a model's operations is dispatched on its own (and, for
+    each new geometry size, compiled or looked up in the persistent cache): three evaluations
+    per exponent were most of a warm ``brdf-fit convert phong-to-ggx``."""
+    global _EVAL
+    if _EVAL is None:
+        import equinox as eqx
+
+        _EVAL = eqx.filter_jit(lambda m, a, b: m.eval(a, b))
+    n = wi.shape[0]
+    extra = max(int(size or n) - n, 0)
+    if extra:
+        z = np.zeros((extra, 3), wi.dtype)
+        z[:, 2] = 1.0
+        wi, wo = np.concatenate([wi, z]), np.concatenate([wo, z])
+    return np.asarray(_EVAL(model, wi, wo), float)[:n]
+
+
 def _one(source: str, n: float, metric: str, max_zenith_deg: float,
          pad_to: int | None = None) -> PhongToGGXRow:
-    import jax.numpy as jnp
-
-
     t0 = time.perf_counter()
     nb = _blinn_exponent(source, n)
     a_closed = _closed_alpha(source, n)
@@ -262,15 +282,15 @@ def _one(source: str, n: float, metric: str, max_zenith_deg: float,
     params = {"f0" if "f0" in src.param_names else "rho_s": scale, "exponent": n}
     if "rho_d" in src.param_names:
         params["rho_d"] = 0.0
-    f = np.asarray(src.build(**params).eval(jnp.asarray(wi), jnp.asarray(wo)), float)
+    f = _eval(src.build(**params), wi, wo, pad_to)
     data = GonioData(wi=wi, wo=wo, value=f[:, None], channels=("Y",),
                      metadata={"source": source, "params": params})
     init = {"alpha": min(a_closed, 0.999), "f0": PEAK_F0}
     r = fit(data, "ggx", init=init, metric=metric, pad_to=pad_to)
     ggx = registry.get("ggx")
-    m = np.asarray(r.model.eval(jnp.asarray(wi), jnp.asarray(wo)), float).reshape(-1)
-    m_closed = np.asarray(ggx.build(alpha=min(a_closed, 1.0), f0=PEAK_F0).eval(
-        jnp.asarray(wi), jnp.asarray(wo)), float).reshape(-1)
+    m = _eval(r.model, wi, wo, pad_to).reshape(-1)
+    m_closed = _eval(ggx.build(alpha=min(a_closed, 1.0), f0=PEAK_F0), wi, wo,
+                     pad_to).reshape(-1)
     c = wi[:, 2]
     core = f >= CORE_FRACTION * f.max()
     alpha_fit = float(np.asarray(r.params["alpha"]))

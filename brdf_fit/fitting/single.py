@@ -30,6 +30,15 @@ residuals or ``J`` are not finite (the fit then ends not converged).
 
 The optimisation itself (:func:`solve`) is pure JAX: it runs under ``jit`` and ``vmap`` and is
 differentiable with respect to the data through optimistix's implicit adjoint.
+
+Start-up cost (issue 15): the three jitted functions of a static problem (:func:`_compiled`) are
+shared by every fit of that problem in a process and, where ``$BRDF_FIT_EXPORT_DIR`` names a
+folder (the command line sets one in its cache folder), kept across processes as exported
+programs (:mod:`brdf_fit.fitting._export`): a second process neither traces nor lowers the
+model and the solver, and with JAX's persistent compilation cache it compiles nothing either.
+The data are prepared, padded and subsampled in NumPy (no eager JAX operation: each is a
+dispatch, a compilation or a cache look-up of its own), and optimistix is imported only when a
+solver is traced.
 """
 
 from __future__ import annotations
@@ -37,17 +46,17 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
 
 from brdf_fit.core.validate import ParameterError
 from brdf_fit.data import GonioData
 from brdf_fit.fitting import guess as _guess
+from brdf_fit.fitting._export import ExportedCall
 from brdf_fit.fitting.problem import (
     DATA_SCALE_FLOOR,
     METRICS,
@@ -63,7 +72,6 @@ from brdf_fit.fitting.problem import (
     stderr_codes,
     stderr_notes,
 )
-from brdf_fit.verify.checks import run_checks
 
 __all__ = ["FitResult", "fit", "solve", "covariance", "covariance_normal", "METRICS", "SOLVERS",
            "RELATIVE_FLOOR", "Transform", "FitError", "FitProblem", "at_bound"]
@@ -73,28 +81,70 @@ def _quiet(*args, **kwargs):
     return None
 
 
-class LineSearchGaussNewton(optx.AbstractGaussNewton):
-    """Gauss-Newton steps (``optx.NewtonDescent`` on the normal equations) globalised by a
-    backtracking Armijo line search (Nocedal & Wright, *Numerical Optimization*, 2nd ed. 2006,
-    algorithm 3.1 and section 10.3). Plain Gauss-Newton (``optx.GaussNewton``, step length 1)
-    diverges from a start as far as alpha = 0.4 for a truth of 0.23 in GGX fits (measured: it
-    ran to the alpha = 1 bound); the line search keeps each step a descent step."""
-
-    rtol: float
-    atol: float
-    norm: Callable = optx.max_norm
-    descent: optx.NewtonDescent = optx.NewtonDescent()
-    search: optx.BacktrackingArmijo = optx.BacktrackingArmijo()
-    verbose: Callable = _quiet
+_SOLVER_CLASSES: dict = {}
 
 
-SOLVERS = {
-    "lm": optx.LevenbergMarquardt,
-    "levenberg-marquardt": optx.LevenbergMarquardt,
-    "gauss-newton": LineSearchGaussNewton,
-    "gauss-newton-plain": optx.GaussNewton,
-    "dogleg": optx.Dogleg,
-}
+def _solver_classes() -> dict:
+    """The solver classes, made on first use: optimistix (with lineax) is imported only when a
+    solver is traced, not by a process that runs exported programs only
+    (:mod:`brdf_fit.fitting._export`; 0.1-0.2 s of a warm ``brdf-fit fit``)."""
+    if not _SOLVER_CLASSES:
+        import optimistix as optx
+
+        class LineSearchGaussNewton(optx.AbstractGaussNewton):
+            """Gauss-Newton steps (``optx.NewtonDescent`` on the normal equations) globalised by
+            a backtracking Armijo line search (Nocedal & Wright, *Numerical Optimization*, 2nd
+            ed. 2006, algorithm 3.1 and section 10.3). Plain Gauss-Newton
+            (``optx.GaussNewton``, step length 1) diverges from a start as far as alpha = 0.4
+            for a truth of 0.23 in GGX fits (measured: it ran to the alpha = 1 bound); the line
+            search keeps each step a descent step."""
+
+            rtol: float
+            atol: float
+            norm: Callable = optx.max_norm
+            descent: optx.NewtonDescent = optx.NewtonDescent()
+            search: optx.BacktrackingArmijo = optx.BacktrackingArmijo()
+            verbose: Callable = _quiet
+
+        LineSearchGaussNewton.__module__ = __name__
+        LineSearchGaussNewton.__qualname__ = "LineSearchGaussNewton"
+        _SOLVER_CLASSES.update({
+            "lm": optx.LevenbergMarquardt,
+            "levenberg-marquardt": optx.LevenbergMarquardt,
+            "gauss-newton": LineSearchGaussNewton,
+            "gauss-newton-plain": optx.GaussNewton,
+            "dogleg": optx.Dogleg,
+        })
+    return _SOLVER_CLASSES
+
+
+class _Solvers(Mapping):
+    """Solver name -> optimistix solver class; the names without importing optimistix."""
+
+    _NAMES = ("lm", "levenberg-marquardt", "gauss-newton", "gauss-newton-plain", "dogleg")
+
+    def __getitem__(self, name):
+        if name not in self._NAMES:
+            raise KeyError(name)
+        return _solver_classes()[name]
+
+    def __iter__(self):
+        return iter(self._NAMES)
+
+    def __len__(self):
+        return len(self._NAMES)
+
+    def __contains__(self, name):
+        return name in self._NAMES
+
+
+SOLVERS = _Solvers()
+
+
+def __getattr__(name: str):
+    if name == "LineSearchGaussNewton":
+        return _solver_classes()["gauss-newton"]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def solve(problem: FitProblem, u0, arrays, solver="lm", rtol=1e-10, atol=1e-10, max_steps=256,
@@ -102,6 +152,8 @@ def solve(problem: FitProblem, u0, arrays, solver="lm", rtol=1e-10, atol=1e-10, 
     """Pure-JAX least-squares solve from ``u0``; returns ``(u, converged, steps)`` (``u`` is
     differentiable with respect to ``arrays`` by optimistix's implicit adjoint).
     ``residuals(u, arrays)``: the flat residual (default :meth:`FitProblem.residuals`)."""
+    import optimistix as optx
+
     cls = SOLVERS[solver]
     res = problem.residuals if residuals is None else residuals
     sol = optx.least_squares(
@@ -238,12 +290,12 @@ def _pad(arrays, n: int, at_least: int | None = None):
     if extra == 0:
         return arrays
 
-    def grow(a, fill):
-        pad = jnp.full((extra, *a.shape[1:]), fill, a.dtype)
-        return jnp.concatenate([a, pad])
+    def grow(a, fill):  # NumPy: an eager jnp op costs a dispatch (and a cache look-up) each
+        return np.concatenate([a, np.full((extra, *a.shape[1:]), fill, a.dtype)])
 
-    z = jnp.zeros((extra, 3), wi.dtype).at[:, 2].set(1.0)
-    return (jnp.concatenate([wi, z]), jnp.concatenate([wo, z]), grow(f, 0.0), grow(w, 0.0),
+    z = np.zeros((extra, 3), wi.dtype)
+    z[:, 2] = 1.0
+    return (np.concatenate([wi, z]), np.concatenate([wo, z]), grow(f, 0.0), grow(w, 0.0),
             None if sigma is None else grow(sigma, 1.0), floor)
 
 
@@ -257,9 +309,11 @@ def _arrays(data: GonioData, max_zenith_deg, dtype):
     w = data.weight[keep]
     f = data.value[keep]
     floor = RELATIVE_FLOOR * max(float(np.max(np.abs(f))), DATA_SCALE_FLOOR)
-    sigma = None if data.sigma is None else jnp.asarray(data.sigma[keep], dtype)
-    return (jnp.asarray(data.wi[keep], dtype), jnp.asarray(data.wo[keep], dtype),
-            jnp.asarray(f, dtype), jnp.asarray(w, dtype), sigma, floor), int(keep.sum())
+    # NumPy arrays (the jitted functions take them as they are): padding and subsampling them
+    # are then no eager JAX operations
+    sigma = None if data.sigma is None else np.asarray(data.sigma[keep], dtype)
+    return (np.asarray(data.wi[keep], dtype), np.asarray(data.wo[keep], dtype),
+            np.asarray(f, dtype), np.asarray(w, dtype), sigma, floor), int(keep.sum())
 
 
 @dataclasses.dataclass(frozen=True)
@@ -289,6 +343,23 @@ def _finish(problem, u, a):
     return phys, x, r, J
 
 
+def _export_key(problem: FitProblem, key) -> str | None:
+    """The text that decides the programs of :func:`_compiled` across processes
+    (:class:`brdf_fit.fitting._export.ExportedCall`), or None where it cannot be trusted to:
+    only the package's own registry models (a model registered by a script, or a built
+    model, may change without the package's source hash changing), and only a key whose text
+    holds no object addresses."""
+    src = problem.source
+    if not (isinstance(key[0][0], tuple) and key[0][0][:1] == ("registry",)):
+        return None
+    builder = getattr(getattr(src, "entry", None), "builder", None)
+    module = getattr(builder, "__module__", None) or ""
+    if not module.startswith("brdf_fit."):
+        return None
+    text = repr(key)
+    return None if " at 0x" in text else text
+
+
 _JITTED: dict = {}
 #: compiled problems kept (oldest dropped first); a select over ten candidates uses ten
 MAX_JITTED = 64
@@ -313,12 +384,14 @@ def _compiled(problem: FitProblem, n_channels: int, solver, rtol, atol, max_step
         return template.with_fixed(fx)
 
     C = int(n_channels)
+    static = _export_key(problem, key)
     got = _Jitted(
-        run=jax.jit(lambda u, a, fx: _run_and_loss(P(fx), u, a, solver, rtol, atol,
-                                                   max_steps)),
-        per_channel=jax.jit(jax.vmap(lambda u, a, fx: 0.5 * jnp.sum(
+        run=ExportedCall(jax.jit(lambda u, a, fx: _run_and_loss(P(fx), u, a, solver, rtol, atol,
+                                                                max_steps)), "run", static),
+        per_channel=ExportedCall(jax.jit(jax.vmap(lambda u, a, fx: 0.5 * jnp.sum(
             P(fx).residuals(u, a).reshape(-1, C) ** 2, axis=0), in_axes=(0, None, None))),
-        finish=jax.jit(lambda u, a, fx: _finish(P(fx), u, a)),
+            "per_channel", static),
+        finish=ExportedCall(jax.jit(lambda u, a, fx: _finish(P(fx), u, a)), "finish", static),
     )
     if len(_JITTED) >= MAX_JITTED:
         _JITTED.pop(next(iter(_JITTED)))
@@ -381,7 +454,7 @@ def fit(
     init = dict(init or {})
     free = resolve_free(source, fix, init, free)  # unknown names raise with the valid list
     data.validate()
-    dtype = jnp.zeros(()).dtype
+    dtype = np.dtype(jax.dtypes.canonicalize_dtype(np.float64))  # float32 without x64
     arrays, n_used = _arrays(data, max_zenith_deg, dtype)
     arrays = _pad(arrays, n_used, pad_to)
     C = data.n_channels
@@ -407,7 +480,7 @@ def fit(
     if vary:
         cands = _guess.design(problem, u0, vary, defaults)
         sub = _guess.subsample(n_used)
-        sub_arrays = _pad(tuple(a[sub] if isinstance(a, jax.Array) else a for a in arrays),
+        sub_arrays = _pad(tuple(a[sub] if isinstance(a, np.ndarray) else a for a in arrays),
                           len(sub))
         losses = np.asarray(jitted.per_channel(jnp.asarray(cands, dtype), sub_arrays, fx))
         u0 = np.asarray(_guess.pick(np, cands, losses, _guess.layout(problem, vary),
@@ -482,6 +555,8 @@ def fit(
                        if at_bound(tr, params[n]).any()),
     )
     if checks:
+        from brdf_fit.verify.checks import run_checks
+
         result.checks = run_checks(fitted, checks=list(checks), name=source.name,
                                    expected_failures=source.expected_failures)
     result.seconds = time.perf_counter() - t0
