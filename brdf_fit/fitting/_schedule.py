@@ -32,7 +32,8 @@ from brdf_fit.fitting._lm import (
 )
 
 __all__ = ["Runner", "runner", "blocked", "run_chunks", "bucket", "chunk_schedule",
-           "CHUNK_SCHEDULE", "GROUP", "MAX_BLOCK", "MIN_BUCKET", "BUCKET_GROWTH", "MAX_RUNNERS"]
+           "CHUNK_SCHEDULE", "GROUP", "MAX_BLOCK", "MIN_BUCKET", "BUCKET_GROWTH", "MAX_RUNNERS",
+           "block_lanes", "BLOCK_STEPS_PER_OCTAVE"]
 
 #: Smallest straggler bucket; buckets grow by BUCKET_GROWTH (16, 32, 64, ...): a lane costs the
 #: same whether it is active or padding, so a coarse ladder (x4) paid up to 4x for a chunk.
@@ -67,6 +68,28 @@ def chunk_schedule(chunk_steps, max_steps: int) -> tuple[int, ...]:
     else:
         raise ValueError(f"chunk_steps must be 'auto', None or an int, got {chunk_steps!r}")
     return tuple(max(1, min(int(c), max_steps)) for c in schedule)
+
+
+#: Block sizes of a whole batch below MAX_BLOCK: 8 per octave (256, 288, 320, ...), so a batch
+#: pays at most 1/8 more lanes than it has problems (the grid guess and the first chunk run every
+#: lane of the block). With the power-of-two ladder a batch of 260 problems ran in 512 lanes,
+#: 1.42-1.73x the time of 256 (the fault benchmark, issue 16). The stragglers' buckets keep the
+#: coarse ladder: they are few lanes, and every distinct size is one more compilation.
+BLOCK_STEPS_PER_OCTAVE = 8
+
+
+def block_lanes(n: int, unit: int) -> int:
+    """The block for a batch of ``n`` problems: the smallest of ``MIN_BUCKET``, then
+    :data:`BLOCK_STEPS_PER_OCTAVE` sizes per octave, that holds ``n``, up to
+    :data:`MAX_BLOCK`; rounded up to a multiple of ``unit``."""
+    if n >= MAX_BLOCK:
+        return bucket(MAX_BLOCK, unit)
+    if n <= MIN_BUCKET:
+        b = MIN_BUCKET
+    else:
+        step = max(1, 2 ** (int(math.floor(math.log2(n))) - int(math.log2(BLOCK_STEPS_PER_OCTAVE))))
+        b = -(-n // step) * step
+    return int(math.ceil(b / unit) * unit)
 
 
 def bucket(n: int, unit: int) -> int:

@@ -132,8 +132,8 @@ from brdf_fit.fitting._schedule import (
     CHUNK_SCHEDULE,
     GROUP,
     MAX_BLOCK,
+    block_lanes,
     blocked,
-    bucket,
     chunk_schedule,
     run_chunks,
     runner,
@@ -375,8 +375,7 @@ def fit_batch(
     unit = run.unit
     # one block shape per call (compiled once): the whole batch without groups (a plain
     # vmapped solve), else the batch's bucket up to MAX_BLOCK lanes
-    block = (int(math.ceil(B / unit) * unit) if group is None
-             else min(bucket(MAX_BLOCK, unit), bucket(B, unit)))
+    block = (int(math.ceil(B / unit) * unit) if group is None else block_lanes(B, unit))
     every = np.arange(B)
     # the problem axis of the data padded to whole blocks (repeating the last problem; never
     # read: every lane index is < B), so that every batch of one block-size class has the same
