@@ -15,6 +15,21 @@ Implementations timed per batch size N (all float32, x64 left disabled):
 ``jax-normsum``  (GGX only) the same formulas written ``jnp.linalg.norm(.., keepdims=True)`` /
                  ``jnp.sum(a * b, -1)`` style, to test the DESIGN note "component-unpacked kernels
                  are ~4x faster than norm/sum-style ones".
+``roof-1d``      (GGX only, a roofline, not an evaluation) ``jax.jit(lambda x: x * 2.0)`` on a flat
+                 float32 array of 4.5 N elements: 18 bytes read and 18 written per pair, the 36
+                 bytes per evaluation of the (N, 3) kernel (24 read, 12 written), as one
+                 contiguous stream: the memory-bandwidth bound of the machine through XLA.
+``roof-n3``      (GGX only, a roofline) ``jax.jit(lambda a, b: a + b)`` on the (N, 3) inputs: the
+                 same 36 bytes per pair in the kernel's layout. XLA CPU (jaxlib 0.10) emits a
+                 lone (N, 3) elementwise op with its tiled emitter, one 3-float row per
+                 iteration through a stack temporary (no vectorisation across rows): several
+                 times slower than ``roof-1d`` (a layout cost, not a bandwidth one; the fused
+                 model kernels go through the loop emitter and are vectorised 8 rows at a time).
+
+Threads: XLA CPU splits every loop fusion of these kernels into as many partitions as there are
+cores (``backend_config={"outer_dimension_partitions":["2"]}`` in the compiled HLO on a 2-core
+machine), so the ``jax*`` rows use all cores; the NumPy rows use one. Under load from other
+processes the multi-threaded rows lose more than the single-threaded ones.
 
 Before timing, every implementation is checked against ``model.eval`` on the benchmark inputs
 (relative error <= 1e-4 on every output, identical zeros); the script exits non-zero otherwise.
@@ -374,6 +389,18 @@ def jax_model_eval(model, wi, wo):
     return model.eval(wi, wo)
 
 
+@jax.jit
+def jax_roof_1d(x):
+    """Roofline: one read and one write of ``x`` (float32), nothing else."""
+    return x * 2.0
+
+
+@jax.jit
+def jax_roof_n3(a, b):
+    """Roofline in the (N, 3) layout: reads both inputs, writes one (N, 3) array."""
+    return a + b
+
+
 # ----------------------------------------------------------------------------- checks
 
 
@@ -539,6 +566,8 @@ def build_cases(n: int, rng: np.random.Generator, dirs=None):
             "numpy-alloc": (np_ggx.eval_alloc, (wi_np, wo_np)),
             "jax-unpacked": (jax_ggx_unpacked, (params, wi, wo)),
             "jax-normsum": (jax_ggx_normsum, (params, wi, wo)),
+            "roof-1d": (jax_roof_1d, (jnp.ones(max(1, (9 * wi.shape[0]) // 2), jnp.float32),)),
+            "roof-n3": (jax_roof_n3, (wi, wo)),
         },
         "lambert": {
             "jax": (jax_model_eval, (lam, wi, wo)),
@@ -557,7 +586,7 @@ def check(models: dict, n: int) -> dict:
         if ref.dtype != np.float32:
             raise AssertionError(f"{model}: brdf_fit returned {ref.dtype}, expected float32")
         for name, (fn, args) in cases.items():
-            if name == "jax":
+            if name == "jax" or name.startswith("roof-"):
                 continue
             out = np.asarray(_block(fn(*args)))
             if out.dtype != np.float32:
@@ -577,7 +606,10 @@ def compute_ratios(rows: list) -> list:
 
     ``jax_over_numpy`` = t_numpy / t_jax (> 1: JAX faster); ``jax_over_numpy_alloc`` likewise
     against the allocating NumPy variant; ``normsum_slowdown`` = t_normsum / t_unpacked and
-    ``library_over_unpacked`` = t_jax / t_unpacked (> 1: slower than the hand-unpacked kernel).
+    ``library_over_unpacked`` = t_jax / t_unpacked (> 1: slower than the hand-unpacked kernel);
+    ``jax_over_roofline`` = t_roof-1d / t_jax (the fraction of the memory-bandwidth bound the
+    model reaches; meaningful at large N, where both are bandwidth- or compute-bound rather than
+    dispatch-bound).
     """
     by = {(r["model"], r["n"], r["impl"]): r for r in rows}
     out = []
@@ -590,6 +622,7 @@ def compute_ratios(rows: list) -> list:
             "jax_over_numpy_alloc": ("numpy-alloc", "jax"),
             "normsum_slowdown": ("jax-normsum", "jax-unpacked"),
             "library_over_unpacked": ("jax", "jax-unpacked"),
+            "jax_over_roofline": ("roof-1d", "jax"),
         }
         for key, (num, den) in pairs.items():
             if (model, n, num) in by and (model, n, den) in by:
@@ -638,11 +671,13 @@ def write_markdown(path: Path, command: str, info: dict, rows: list, ratios: lis
         "",
         "Throughput ratio jax/numpy = t_numpy / t_jax (> 1: the jitted brdf_fit model is faster); "
         "normsum slowdown = t_jax-normsum / t_jax-unpacked; library/unpacked = t_jax / "
-        "t_jax-unpacked (> 1: the library's guarded kernel is slower than the hand-written one).",
+        "t_jax-unpacked (> 1: the library's guarded kernel is slower than the hand-written one); "
+        "jax/roofline = t_roof-1d / t_jax (fraction of the memory-bandwidth bound reached: "
+        "`roof-1d` moves the kernel's 36 bytes per pair, see the implementations below).",
         "",
         "| model | N | jax/numpy (median) | jax/numpy (best) | jax/numpy-alloc (median) "
-        "| normsum slowdown (median) | library/unpacked (median) |",
-        "|---|---:|---:|---:|---:|---:|---:|",
+        "| normsum slowdown (median) | library/unpacked (median) | jax/roofline (median) |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|",
     ]
 
     def cell(rec, key, bold=False):
@@ -656,7 +691,8 @@ def write_markdown(path: Path, command: str, info: dict, rows: list, ratios: lis
             f"| {rec['model']} | {rec['n']:.0e} | {cell(rec, 'jax_over_numpy_median', True)} "
             f"| {cell(rec, 'jax_over_numpy_best')} | {cell(rec, 'jax_over_numpy_alloc_median')} "
             f"| {cell(rec, 'normsum_slowdown_median')} "
-            f"| {cell(rec, 'library_over_unpacked_median')} |"
+            f"| {cell(rec, 'library_over_unpacked_median')} "
+            f"| {cell(rec, 'jax_over_roofline_median')} |"
         )
     lines += [
         "",
@@ -677,7 +713,10 @@ def write_markdown(path: Path, command: str, info: dict, rows: list, ratios: lis
         "argument); `numpy` = the vectorised NumPy float32 baseline in `bench_eval.py`; "
         "`numpy-alloc` = the same NumPy arithmetic as plain expressions (temporaries allocated "
         "per call); `jax-unpacked` / `jax-normsum` = the baseline's formulas in `jnp`, written on "
-        "unpacked components / with `jnp.linalg.norm(.., keepdims=True)` and `jnp.sum(a * b, -1)`. "
+        "unpacked components / with `jnp.linalg.norm(.., keepdims=True)` and `jnp.sum(a * b, -1)`; "
+        "`roof-1d` = `x * 2.0` on a flat float32 array of 4.5 N elements (36 bytes per pair moved, "
+        "one stream: the bandwidth roofline), `roof-n3` = `wi + wo` on the (N, 3) inputs (the same "
+        "bytes in the kernel's layout; XLA's tiled emitter does not vectorise it across rows). "
         "One evaluation = one (wi, wo) pair, all 3 channels.",
         "",
     ]

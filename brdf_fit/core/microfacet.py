@@ -204,7 +204,10 @@ class GGX(AbstractDistribution):
 
     def D(self, mx, my, mz):
         ax, ay = self.widths()
-        s = (mx / ax) ** 2 + (my / ay) ** 2 + mz * mz
+        # x/ax as x * (1/ax): the reciprocals are per-lobe scalars, a division per lane each
+        # otherwise (LLVM may not rewrite x/a as x*(1/a) without fast-math); 1 ulp apart
+        iax, iay = 1.0 / ax, 1.0 / ay
+        s = (mx * iax) ** 2 + (my * iay) ** 2 + mz * mz
         return jnp.where(mz > 0, 1.0 / (PI * ax * ay * s * s), 0.0)
 
     def P(self, wx, wy, wz):

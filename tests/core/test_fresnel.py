@@ -182,3 +182,54 @@ def test_values_and_gradients_finite_on_edges(dtype):
                 for gi in g:
                     assert np.all(np.isfinite(gi)), (eta, k)
                 assert np.all((np.asarray(v) >= 0) & (np.asarray(v) <= 1 + 1e-6))
+
+
+# ---------------------------------------------------------------- fast conductor value (issue 15)
+
+_CONDUCTOR_PARAMS = [(0.2, 3.9), (1.5, 0.0), (1 / 1.5, 0.0), (1.0, 0.0), (1.0, 1.0), (1.0, 100.0),
+                     (0.2, 100.0), (50.0, 0.1), (1.0, 1e-3), (1e-3, 5.0), (2.0, 1e-8)]
+_CONDUCTOR_COS = np.concatenate([[0.0, 1e-12, 1e-7, 1e-4, 1e-2, 1.0 - 1e-12, 1.0],
+                                 np.linspace(0.02, 0.99, 50)])
+
+
+@pytest.mark.parametrize("eta,k", _CONDUCTOR_PARAMS)
+def test_conductor_value_agrees_with_its_careful_form(eta, k):
+    """The float32 value of ``conductor`` (2 sqrt + 3 divisions per channel), computed in
+    float64, and the guarded form (its derivatives, its float64 value) agree to rounding (up to
+    the guarded form's cancellation of ``a2b2 - a^2`` at eta = 1, small k: 1e-10 there, where
+    the fast form is the more accurate)."""
+    c = jnp.asarray(_CONDUCTOR_COS)
+    fast = np.asarray(fresnel._conductor_fast(c, eta, k))
+    careful = np.asarray(fresnel._conductor_careful(c, eta, k))
+    assert np.array_equal(np.asarray(fresnel.conductor(c, eta, k)), careful)  # float64 value
+    rtol = 1e-9 if (eta, k) == (1.0, 1e-3) else 1e-13
+    np.testing.assert_allclose(fast, careful, rtol=rtol, atol=1e-300)
+    if (eta, k) != (1.0, 0.0):  # F = 0 there; the complex reference returns rounding noise
+        np.testing.assert_allclose(fast, ref_fresnel_conductor(_CONDUCTOR_COS, eta, k),
+                                   rtol=1e-12, atol=1e-300)
+
+
+@pytest.mark.parametrize("eta,k", _CONDUCTOR_PARAMS)
+def test_conductor_gradient_is_the_careful_forms(eta, k):
+    """The custom JVP: gradients in (cos, eta, k) are exactly those of the guarded form."""
+    for c in _CONDUCTOR_COS[::4]:
+        g = jax.grad(fresnel.conductor, argnums=(0, 1, 2))(c, eta, k)
+        h = jax.grad(fresnel._conductor_careful, argnums=(0, 1, 2))(c, eta, k)
+        assert [float(x) for x in g] == [float(x) for x in h]
+
+
+@pytest.mark.parametrize("eta,k", _CONDUCTOR_PARAMS)
+def test_conductor_float32_value_and_gradient_finite(eta, k):
+    c = jnp.asarray(_CONDUCTOR_COS, jnp.float32)
+    e, kk = jnp.float32(eta), jnp.float32(k)
+    v = np.asarray(fresnel.conductor(c, e, kk))
+    assert np.array_equal(v, np.asarray(fresnel._conductor_fast(c, e, kk)))  # float32 value
+    assert v.dtype == np.float32 and np.all(np.isfinite(v))
+    assert np.all((v >= 0) & (v <= 1 + 2e-7))  # 1 to rounding at grazing
+    careful = np.asarray(fresnel._conductor_careful(c, e, kk))
+    np.testing.assert_allclose(v, careful, rtol=2e-6, atol=2e-7)
+    # gradients on the hard-case cosines (>= 1e-7; the careful form's float32 gradient at
+    # eta = 1, k = 0, cos = 1e-12 is NaN, as it was before the fast value was added)
+    cg = c[(c == 0) | (c >= 1e-7)]
+    g = jax.vmap(jax.grad(fresnel.conductor, argnums=(0, 1, 2)), (0, None, None))(cg, e, kk)
+    assert all(np.all(np.isfinite(np.asarray(x))) for x in g)
