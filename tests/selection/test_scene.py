@@ -228,6 +228,19 @@ def test_bad_scene_requests(tmp_path, capsys, monkeypatch, argv, fragment):
 SCHEMA = pathlib.Path(__file__).resolve().parents[1] / "convert" / "gltf_material.schema.json"
 
 
+def test_example_scene_loads_every_material():
+    """The embedded example scene reads without a fit (the default run; the whole selection
+    and export of it below is in the slow set)."""
+    s = sc.load_scene(sc.EXAMPLE_SCENE)
+    kinds = [m.kind for m in s.materials]
+    assert kinds.count("mtl") >= 5 and "data" in kinds and "model" in kinds and not s.bad
+    assert all(m.data is not None and m.data.n > 0 for m in s.materials)
+
+
+#: 30 s (27 fits and 9 x 2 exports): the suite's time budget. The same path (scene -> selection
+#: -> glTF and Mitsuba exports, schema and Mitsuba load) runs by default on the small scenes of
+#: this file and in tests/convert/test_{gltf,mitsuba}_export.py
+@pytest.mark.slow
 def test_example_scene_prints_choices_and_set_and_writes_gltf_and_mitsuba(tmp_path, capsys):
     """Issue 18: the embedded example scene (an MTL file of 7 materials of the kinds OBJ
     exports hold, a measured-style gonioreflectometer file, a registry model), from a copy (paths
