@@ -164,6 +164,17 @@ def test_dielectric_gradients_match_finite_differences(c, eta):
         assert float(a) == pytest.approx(float(b), rel=1e-6, abs=1e-8)
 
 
+_EDGE_FNS = (
+    lambda c, e, kk: fresnel.conductor(c, e, kk),
+    lambda c, e, kk: fresnel.dielectric(c, e) + 0.0 * kk,
+    lambda c, e, kk: fresnel.schlick(c, fresnel.f0_from_ior(e, kk)),
+)
+#: one jitted value-and-gradient program per function (eta, k as arguments, not constants):
+#: compiled once per dtype instead of traced eagerly for each of the 15 (eta, k) pairs
+_EDGE_VG = tuple(jax.jit(jax.vmap(jax.value_and_grad(fn, argnums=(0, 1, 2)),
+                                  in_axes=(0, None, None))) for fn in _EDGE_FNS)
+
+
 @pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
 def test_values_and_gradients_finite_on_edges(dtype):
     cs = jnp.asarray([0.0, 1e-7, 1e-4, 0.5, 1.0, -1e-7, -0.5, -1.0], dtype)
@@ -171,13 +182,8 @@ def test_values_and_gradients_finite_on_edges(dtype):
         for k in [0.0, 1.0, 100.0]:
             e = jnp.asarray(eta, dtype)
             kk = jnp.asarray(k, dtype)
-            for fn in (
-                lambda c, e, kk: fresnel.conductor(c, e, kk),
-                lambda c, e, kk: fresnel.dielectric(c, e) + 0.0 * kk,
-                lambda c, e, kk: fresnel.schlick(c, fresnel.f0_from_ior(e, kk)),
-            ):
-                v = jax.vmap(fn, in_axes=(0, None, None))(cs, e, kk)
-                g = jax.vmap(jax.grad(fn, argnums=(0, 1, 2)), in_axes=(0, None, None))(cs, e, kk)
+            for vg in _EDGE_VG:
+                v, g = vg(cs, e, kk)
                 assert np.all(np.isfinite(v)), (eta, k)
                 for gi in g:
                     assert np.all(np.isfinite(gi)), (eta, k)
@@ -209,13 +215,23 @@ def test_conductor_value_agrees_with_its_careful_form(eta, k):
                                    rtol=1e-12, atol=1e-300)
 
 
+#: the gradients of both forms, vmapped over cos (eta, k broadcast), each traced once for the
+#: whole parametrisation (eager scalar calls traced 2 x 15 gradients per case: 21 s in all)
+_GRAD_CONDUCTOR = jax.vmap(jax.grad(fresnel.conductor, argnums=(0, 1, 2)), (0, None, None))
+_GRAD_CAREFUL = jax.vmap(jax.grad(fresnel._conductor_careful, argnums=(0, 1, 2)), (0, None, None))
+
+
 @pytest.mark.parametrize("eta,k", _CONDUCTOR_PARAMS)
 def test_conductor_gradient_is_the_careful_forms(eta, k):
     """The custom JVP: gradients in (cos, eta, k) are exactly those of the guarded form."""
-    for c in _CONDUCTOR_COS[::4]:
-        g = jax.grad(fresnel.conductor, argnums=(0, 1, 2))(c, eta, k)
-        h = jax.grad(fresnel._conductor_careful, argnums=(0, 1, 2))(c, eta, k)
-        assert [float(x) for x in g] == [float(x) for x in h]
+    c = jnp.asarray(_CONDUCTOR_COS[::4])
+    g = _GRAD_CONDUCTOR(c, eta, k)
+    h = _GRAD_CAREFUL(c, eta, k)
+    for x, y in zip(g, h, strict=True):
+        assert np.array_equal(np.asarray(x), np.asarray(y))
+
+
+_GRAD_CONDUCTOR_JIT = jax.jit(_GRAD_CONDUCTOR)  # compiled once for all 11 (eta, k)
 
 
 @pytest.mark.parametrize("eta,k", _CONDUCTOR_PARAMS)
@@ -231,5 +247,5 @@ def test_conductor_float32_value_and_gradient_finite(eta, k):
     # gradients on the hard-case cosines (>= 1e-7; the careful form's float32 gradient at
     # eta = 1, k = 0, cos = 1e-12 is NaN, as it was before the fast value was added)
     cg = c[(c == 0) | (c >= 1e-7)]
-    g = jax.vmap(jax.grad(fresnel.conductor, argnums=(0, 1, 2)), (0, None, None))(cg, e, kk)
+    g = _GRAD_CONDUCTOR_JIT(cg, e, kk)
     assert all(np.all(np.isfinite(np.asarray(x))) for x in g)

@@ -110,19 +110,24 @@ def demo_selection():
     return d, select(d, [name for name, _ in demo.DEMO_FITS], checks=())
 
 
-def test_a_candidate_that_cannot_be_fitted_loses_no_other(demo_selection):
+def test_a_candidate_that_cannot_be_fitted_loses_no_other():
     """modified-phong fitted to gold in the radiance error ends at rho_d + rho_s > 1, which the
-    model refuses: the candidate is reported with its reason, the others are selected."""
-    _, s = demo_selection
+    model refuses: the candidate is reported with its reason, the others are selected. (Two of
+    the demo's candidates: the demo's full list, with ggx-conductor's 17 s compilation, runs in
+    the slow multistart test below.)"""
+    from brdf_fit import demo
+
+    s = select(synthesize(demo.DEMO_RECIPE), ["modified-phong", "ggx"], checks=())
     bad = s.candidate("modified-phong")
     assert "rho_d + rho_s" in bad.message and not bad.within_budget and not bad.pareto
-    # ggx and ggx-conductor are both within the budget and their measured costs are close
-    # (17 and 19 ns): which is cheaper in this run depends on the load of the machine
-    assert s.choice in ("ggx", "ggx-conductor") and s.candidates[-1].model == "modified-phong"
+    assert s.choice == "ggx" and s.candidates[-1].model == "modified-phong"
+    doc = json.loads(json.dumps(s.to_dict(), allow_nan=False))  # strict JSON
+    assert doc["candidates"][-1]["message"] and doc["candidates"][-1]["error"] is None
     doc = json.loads(json.dumps(s.to_dict(), allow_nan=False))  # strict JSON
     assert doc["candidates"][-1]["message"] and doc["candidates"][-1]["error"] is None
 
 
+@pytest.mark.slow  # the demo's five candidates, ggx-conductor among them (28 s)
 def test_each_candidate_error_is_no_worse_than_eight_multistarts(demo_selection):
     """Issue 18: every candidate's reported error is no worse than the best of 8 multistarts of
     that model in the same error (a fit in the radiance error from 8 random starts, seeded
