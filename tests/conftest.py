@@ -15,7 +15,7 @@ jax.config.update("jax_numpy_dtype_promotion", "strict")
 
 # ----------------------------------------------------------------------------- time budget
 # The registry-wide contract tests are parametrised over every entry. For the foundation,
-# microfacet and Phong entries (CORE) all of them run by default; for the catalogue entries
+# microfacet entries (CORE, below) all of them run by default; for the catalogue entries
 # (issue 6: 28 more) the default run keeps the cheap ones, the checks (tests/verify/test_checks.py,
 # which make the README's catalogue table true), the hard cases and one chi-square view, and the
 # rest run with `make test-all` (-m "slow or not slow"). Each catalogue model's own test file
@@ -23,18 +23,20 @@ jax.config.update("jax_numpy_dtype_promotion", "strict")
 
 import pytest  # noqa: E402
 
-CORE = {
-    "lambert", "mirror", "cook-torrance", "torrance-sparrow", "beckmann", "beckmann-walter",
-    "ggx", "ggx-separable", "ggx-conductor", "ggx-aniso", "beckmann-aniso",
-    "ggx-conductor-aniso", "ggx-plastic", "blinn-phong-microfacet", "phong-original",
-    "modified-phong",
-}
-# The Phong family's other members (blinn-phong, blinn-phong-approx, modified-phong-fresnel,
-# phong-energy-normalized, phong-energy-normalized-arvo: 56 s of contract tests, measured
-# --durations, stop 24) are treated as catalogue entries here: their own files run their
-# finite-difference gradients, float32 and pdf tests by default (tests/models/test_phong.py,
-# tests/core/test_phong_normaliser.py) and their checks at exponent 100
-# (tests/verify/test_phong_checks.py).
+CORE = {"lambert", "mirror", "cook-torrance", "beckmann", "ggx", "ggx-conductor", "ggx-aniso",
+        "blinn-phong-microfacet"}
+# The other foundation entries are variants of these (stop 24: the suite measured 12:50 on 2 idle
+# cores, over its 12-minute budget), run as catalogue entries here: the microfacet variants
+# (torrance-sparrow, beckmann-walter, ggx-separable, beckmann-aniso, ggx-conductor-aniso,
+# ggx-plastic) assemble GGX/Beckmann D, G and F terms whose values and finite-difference
+# gradients tests/core/test_microfacet.py (isotropic and anisotropic, every masking) and
+# tests/core/test_fresnel.py test term by term (the Blinn-Phong NDF has no such test there, so
+# blinn-phong-microfacet stays); the Phong family (phong-original, modified-phong, modified-phong-fresnel,
+# blinn-phong, blinn-phong-approx, phong-energy-normalized, -arvo) has its own files:
+# finite-difference gradients, float32 and pdf tests in tests/models/test_phong.py and
+# tests/core/test_phong_normaliser.py, every check at exponent 100 in
+# tests/verify/test_phong_checks.py. Every entry keeps the default checks, the float32 hard
+# cases, the float32-over-intervals test and one chi-square view.
 #: contract tests that run for catalogue entries only in the slow set
 CATALOGUE_SLOW = {
     "tests/models/test_models.py::test_gradients_match_finite_differences",
@@ -66,10 +68,7 @@ CHECKS_SLOW = {"htsg", "kelemen", "poulin-fournier", "torrance-sparrow-gaussian"
 #: appear); its float64 twin runs in the slow set (measured 1.5-4 s per entry, stop 14)
 HARD_CASES = ("tests/models/test_hard_cases.py::test_values_and_gradients_are_finite",
               "tests/models/test_hard_cases.py::test_sampling_is_finite_on_hard_cases")
-#: the entries whose float64 hard cases run by default; the other CORE entries' float64 twins
-#: are in the slow set too (41 s in all, measured stop 24): their float32 runs stay, and float32
-#: is where overflow and NaN appear
-HARD_F64_DEFAULT = {"lambert", "mirror", "ggx", "beckmann", "cook-torrance", "ggx-conductor"}
+
 #: single tests moved to the slow set for the suite's time budget, each with its reason
 SLOW_TESTS = {
     # the same fits as test_batch_equals_single_fits, on two forced host devices (15 s)
@@ -95,9 +94,6 @@ def pytest_collection_modifyitems(config, items):
         if item.nodeid.split("[")[0] in SLOW_TESTS:
             item.add_marker(pytest.mark.slow)
         name = _entry_of(item)
-        if (name is not None and item.nodeid.split("[")[0] in HARD_CASES
-                and "-f64]" in item.nodeid and name not in HARD_F64_DEFAULT):
-            item.add_marker(pytest.mark.slow)
         if name is None or name in CORE:
             continue
         from brdf_fit import registry

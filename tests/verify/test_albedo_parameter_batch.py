@@ -38,7 +38,7 @@ def test_vmap_over_models_gives_the_per_model_albedo():
     assert e.shape == (N, N)
     # the vmapped and the single call compile to different fusions (summation order): they
     # agree to rounding (measured 3.7e-16 relative); 1e-14 is ~50 ulps
-    for i in range(N):
+    for i in (0, N - 1):  # the first and last rows (each single call is an eager quadrature)
         np.testing.assert_allclose(np.asarray(e[i]),
                                    np.asarray(directional_albedo(lobe(ALPHA[i]), WO[i])),
                                    rtol=1e-14, atol=0)
