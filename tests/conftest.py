@@ -31,8 +31,9 @@ CORE = {"lambert", "mirror", "cook-torrance", "beckmann", "ggx", "ggx-conductor"
 # ggx-plastic) assemble GGX/Beckmann D, G and F terms whose values and finite-difference
 # gradients tests/core/test_microfacet.py (isotropic and anisotropic, every masking) and
 # tests/core/test_fresnel.py test term by term (the Blinn-Phong NDF has no such test there, so
-# blinn-phong-microfacet stays); the Phong family (phong-original, modified-phong, modified-phong-fresnel,
-# blinn-phong, blinn-phong-approx, phong-energy-normalized, -arvo) has its own files:
+# blinn-phong-microfacet stays); the Phong family (phong-original, modified-phong,
+# modified-phong-fresnel, blinn-phong, blinn-phong-approx, phong-energy-normalized, -arvo) has
+# its own files:
 # finite-difference gradients, float32 and pdf tests in tests/models/test_phong.py and
 # tests/core/test_phong_normaliser.py, every check at exponent 100 in
 # tests/verify/test_phong_checks.py. Every entry keeps the default checks, the float32 hard
@@ -45,6 +46,10 @@ CATALOGUE_SLOW = {
     "tests/models/test_models.py::test_pdf_integrates_to_one_minus_failure_probability",
     "tests/models/test_models.py::test_batch_shapes_broadcast_and_jit_equals_eager",
     "tests/fitting/test_fit_recovery.py::test_noise_free_recovery",
+    # the pdf-normalisation and sampling-weight checks (see tests/verify/test_checks.py)
+    "tests/verify/test_checks.py::test_registry_samplers_pass_or_declare",
+    # the same contract as every entry's default reciprocity check (test_checks.py)
+    "tests/models/test_models.py::test_reciprocity",
 }
 #: the chi-square view that runs by default for catalogue entries (the others: slow)
 CATALOGUE_CHI2_VIEW = "0.3"
@@ -105,10 +110,11 @@ def pytest_collection_modifyitems(config, items):
         if func == "tests/models/test_sampling.py::test_registry_sampler_matches_pdf":
             slow = (str(item.callspec.params.get("cos_o")) != CATALOGUE_CHI2_VIEW
                     or name in CHI2_SLOW)
-        checks_test = "tests/verify/test_checks.py::test_registry_models_pass_or_declare"
-        if name in COSTLY and func != checks_test:
+        checks_tests = ("tests/verify/test_checks.py::test_registry_models_pass_or_declare",
+                        "tests/verify/test_checks.py::test_registry_samplers_pass_or_declare")
+        if name in COSTLY and func not in checks_tests:
             slow = True
-        if name in CHECKS_SLOW and func == checks_test:
+        if name in CHECKS_SLOW and func in checks_tests:
             slow = True
         if func in HARD_CASES and "-f64]" in item.nodeid:
             slow = True
