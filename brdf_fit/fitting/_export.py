@@ -20,6 +20,15 @@ its payload; a file that fails it, fails to load, or does not match the argument
 (and rewritten), and any error while exporting falls back to the plain jitted function:
 the cache can make a call faster, never wrong or failing.
 
+Programs are kept in one subfolder per *generation* (``gen-<hash>``: the jax and jaxlib versions,
+the package version and the source hash, the parts of the key that every program of one
+installation shares). A program of another generation can never be used again by this
+installation, so when a program is written the folder keeps only the :data:`KEEP_GENERATIONS`
+most recently used generations (two installations sharing one folder each keep theirs) and
+deletes the rest, and the files of the earlier flat layout: without it every edit of the
+package left 30-220 kB per program behind, for good. Only names this module writes are ever
+deleted.
+
 Off unless a folder is named in ``$BRDF_FIT_EXPORT_DIR`` (the command line sets it inside its
 cache folder, ``--no-cache`` and ``BRDF_FIT_NO_CACHE=1`` leave it unset). The payload is
 :meth:`jax.export.Exported.serialize` (JAX's own flatbuffer format, versioned by JAX; no code is
@@ -32,6 +41,8 @@ import dataclasses
 import hashlib
 import os
 import pathlib
+import re
+import shutil
 import tempfile
 from collections.abc import Callable
 from typing import Any
@@ -39,6 +50,13 @@ from typing import Any
 #: the environment variable naming the folder of exported programs (unset: no cache)
 ENV = "BRDF_FIT_EXPORT_DIR"
 _MAGIC = b"brdf_fit-exported-2\n"
+#: generations (subfolders) kept when a program is written: the current one and the most
+#: recently used others (another installation sharing the folder, or a version switched back to)
+KEEP_GENERATIONS = 3
+#: names this module writes: a generation folder, a program of the flat layout (before
+#: generations), a temporary file of an interrupted write
+_GEN_RE = re.compile(r"gen-[0-9a-f]{16}")
+_FLAT_RE = re.compile(r"[A-Za-z_]+-[0-9a-f]{40}\.bin|\.tmp-.*")
 
 _SOURCE_HASH: str | None = None
 
@@ -89,6 +107,46 @@ def _key(name: str, static: str, sig: str) -> str:
                      bool(jax.config.jax_enable_x64), jax.default_backend(), __version__,
                      source_hash()))
     return hashlib.sha256(material.encode()).hexdigest()[:40]
+
+
+def generation() -> str:
+    """The name of this installation's subfolder (see the module docstring)."""
+    import jax
+    import jaxlib
+
+    from brdf_fit._version import __version__
+
+    material = repr((jax.__version__, jaxlib.__version__, __version__, source_hash()))
+    return "gen-" + hashlib.sha256(material.encode()).hexdigest()[:16]
+
+
+def prune(folder: str, keep: int = KEEP_GENERATIONS) -> list[str]:
+    """Delete from ``folder`` every generation but the current one and the ``keep - 1`` most
+    recently used others, and the files of the flat layout; the names deleted. Errors (a file
+    in use, no permission) leave that entry: pruning never fails a call."""
+    current = generation()
+    removed = []
+    try:
+        entries = list(os.scandir(folder))
+    except OSError:
+        return removed
+    gens = []
+    for e in entries:
+        try:
+            if e.is_dir(follow_symlinks=False) and _GEN_RE.fullmatch(e.name):
+                if e.name != current:
+                    gens.append((e.stat(follow_symlinks=False).st_mtime, e.path, e.name))
+            elif e.is_file(follow_symlinks=False) and _FLAT_RE.fullmatch(e.name):
+                os.unlink(e.path)
+                removed.append(e.name)
+        except OSError:
+            continue
+    gens.sort(reverse=True)
+    for _, path, name in gens[max(keep - 1, 0):]:
+        shutil.rmtree(path, ignore_errors=True)
+        if not os.path.exists(path):
+            removed.append(name)
+    return removed
 
 
 def _read(path: str, sig_leaves: int):
@@ -188,11 +246,16 @@ class ExportedCall:
         got = self._calls.get(sig)
         if got is not None:
             return got
-        path = os.path.join(folder, f"{self.name}-{_key(self.name, self.static, sig)}.bin")
+        gen = os.path.join(folder, generation())
+        path = os.path.join(gen, f"{self.name}-{_key(self.name, self.static, sig)}.bin")
         n_leaves = len(jax.tree.leaves(args))
         exp = _read(path, n_leaves)
         if exp is not None:
             self.stats["loaded"] += 1
+            try:
+                os.utime(gen)  # used now: the generation's age is its last use
+            except OSError:
+                pass
         else:
             try:
                 exp = _export(self.jitted, args)
@@ -200,6 +263,8 @@ class ExportedCall:
                 self.stats["exported"] += 1
             except Exception:
                 exp = None
+            else:
+                prune(folder)
         fn = self.jitted if exp is None else jax.jit(exp.call)
         if exp is None:
             self.stats["fallback"] += 1

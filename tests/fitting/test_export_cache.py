@@ -59,7 +59,7 @@ def test_exported_path_equals_plain(data, tmp_path, monkeypatch):
     monkeypatch.setenv(_export.ENV, str(folder))
     first, stats = _fit(data)  # exports the three programs and runs them
     assert stats == {"loaded": 0, "exported": 3, "fallback": 0}
-    assert len(list(folder.glob("*.bin"))) == 3
+    assert len(list(folder.rglob("*.bin"))) == 3
     _same(plain, first)
 
     second, stats = _fit(data)  # a warm process: loads them, traces no model code
@@ -83,7 +83,7 @@ def test_stale_and_corrupt_programs_are_never_used(tmp_path, monkeypatch):
     monkeypatch.setenv(_export.ENV, str(folder))
     assert _call(folder) == {"loaded": 0, "exported": 1, "fallback": 0}
     assert _call(folder) == {"loaded": 1, "exported": 0, "fallback": 0}
-    (path,) = folder.glob("tiny-*.bin")
+    (path,) = folder.rglob("tiny-*.bin")
     good = path.read_bytes()
 
     # corrupt files (truncated; a flipped byte; a valid checksum over garbage) are ignored and
@@ -101,10 +101,49 @@ def test_stale_and_corrupt_programs_are_never_used(tmp_path, monkeypatch):
     # another package source (an edited module): another file, the old one is not read
     monkeypatch.setattr(_export, "_SOURCE_HASH", "0" * 64)
     assert _call(folder) == {"loaded": 0, "exported": 1, "fallback": 0}
-    assert len(list(folder.glob("tiny-*.bin"))) == 2
+    assert len(list(folder.rglob("tiny-*.bin"))) == 2
     # another static key (another problem): another file too
     assert _call(folder, "other") == {"loaded": 0, "exported": 1, "fallback": 0}
-    assert len(list(folder.glob("tiny-*.bin"))) == 3
+    assert len(list(folder.rglob("tiny-*.bin"))) == 3
+
+
+def test_old_generations_and_the_flat_layout_are_pruned(tmp_path, monkeypatch):
+    """Programs of other package sources or JAX versions can never be used again: writing a
+    program keeps the current generation and the KEEP_GENERATIONS - 1 most recently used
+    others, deletes the flat layout's files, and leaves every name it did not write."""
+    import os
+
+    folder = tmp_path / "exported"
+    monkeypatch.setenv(_export.ENV, str(folder))
+    folder.mkdir()
+    old = []
+    for i in range(5):  # five earlier generations, gen 0 the oldest
+        g = folder / f"gen-{i:016x}"
+        g.mkdir()
+        (g / f"tiny-{'a' * 40}.bin").write_bytes(b"x" * 100)
+        os.utime(g, (1000.0 + i, 1000.0 + i))
+        old.append(g)
+    flat = folder / f"fit_run-{'b' * 40}.bin"  # the layout before generations
+    flat.write_bytes(b"y")
+    (folder / ".tmp-abc").write_bytes(b"z")  # an interrupted write
+    keep = [folder / "notes.txt", folder / "gen-not-ours", folder / "mine.bin"]
+    keep[0].write_text("a user's file")
+    keep[1].mkdir()
+    keep[2].write_bytes(b"w")
+
+    assert _call(folder) == {"loaded": 0, "exported": 1, "fallback": 0}
+    gens = sorted(p.name for p in folder.glob("gen-????????????????"))
+    current = _export.generation()
+    # the current one and the two most recently used of the others (gens 4 and 3)
+    assert gens == sorted([current, old[4].name, old[3].name])
+    assert _export.KEEP_GENERATIONS == 3
+    assert not flat.exists() and not (folder / ".tmp-abc").exists()
+    assert all(p.exists() for p in keep)
+    # loading marks the generation as used, and a load prunes nothing
+    assert _call(folder) == {"loaded": 1, "exported": 0, "fallback": 0}
+    assert (folder / current).stat().st_mtime > old[4].stat().st_mtime
+    # a folder that cannot be listed: nothing removed, no error
+    assert _export.prune(str(tmp_path / "missing")) == []
 
 
 def test_no_folder_unwritable_folder_or_no_key_use_the_plain_path(tmp_path, monkeypatch):
