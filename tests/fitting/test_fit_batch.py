@@ -394,3 +394,35 @@ def test_guess_pseudo_channels_equal_candidate_by_candidate(name):
         G.candidate_losses(prob, c, prep, {}, lay, chan_of),
         G.candidate_losses(prob, c, prep, {}, None, chan_of)))(jnp.asarray(cands)))
     np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-300)
+
+
+def test_float32_normal_equations_equal_the_einsum_form():
+    """_lm.normal's float32 path (sample axis last, issue 15) forms the same J^T J and J^T r as
+    the einsum of the float64 path, to float32 rounding (the channel parameter's Q included)."""
+    from brdf_fit.fitting import _lm
+    from brdf_fit.fitting.problem import FitProblem
+
+    rng = np.random.default_rng(11)
+    dirs, Q = _lm.directions(FitProblem.of("ggx", ("alpha", "f0"), ((), (3,)), metric="log"), 3)
+    T = rng.standard_normal((len(dirs), 300, 3))
+    r = rng.standard_normal((300, 3))
+    A64, g64 = _lm.normal(jnp.asarray(T), jnp.asarray(r), Q)
+    A32, g32 = _lm.normal(jnp.asarray(T, jnp.float32), jnp.asarray(r, jnp.float32), Q)
+    assert A32.dtype == jnp.float32 and A32.shape == (4, 4) and g32.shape == (4,)
+    np.testing.assert_allclose(np.asarray(A32), np.asarray(A64), rtol=2e-5, atol=2e-4)
+    np.testing.assert_allclose(np.asarray(g32), np.asarray(g64), rtol=2e-5, atol=2e-4)
+    # the float64 path is the einsum itself
+    G = np.einsum("amc,bmc->cab", T, T)
+    np.testing.assert_allclose(np.asarray(A64), np.einsum("cap,cab,cbq->pq", Q, G, Q),
+                               rtol=1e-13)
+
+
+def test_float32_batch_recovers_what_float64_does():
+    """fit_batch(dtype=float32) on 1% noise: the same parameters as float64 to well inside
+    the noise's effect (float32 tolerances 1e-5)."""
+    wi, wo, v = batch(TRUTHS, noise=0.01, seed=4)
+    r64 = fit_batch(wi, wo, v, "ggx")
+    r32 = fit_batch(wi, wo, v, "ggx", dtype=jnp.float32, rtol=1e-5, atol=1e-5)
+    assert r32.converged.all() and r32.params["alpha"].dtype == np.float32
+    np.testing.assert_allclose(r32.params["alpha"], r64.params["alpha"], rtol=2e-4)
+    np.testing.assert_allclose(r32.params["f0"], r64.params["f0"], rtol=0, atol=2e-4)
