@@ -222,6 +222,25 @@ class BatchFitResult:
         }
 
 
+def _clean(name, a) -> bool:
+    """True when ``a`` certainly passes :func:`check_inputs`' tests, from its maximum and minimum
+    alone (NaN propagates through both, an infinity is one of them): two passes over the data
+    and no temporaries. The element-wise tests, which allocate boolean and float copies of the
+    whole batch, then run only to name an offender. Measured on 16,144 x 300 x 3 values
+    (float64): 15 ms; the element-wise tests took 0.2-2.6 s, most of it page faults of the new
+    copies, once per block of a streamed fit (issue 15)."""
+    if a.size == 0:
+        return True
+    hi, lo = np.max(a), np.min(a)
+    if not (np.isfinite(hi) and np.isfinite(lo)):
+        return False
+    if name == "values":
+        return bool(max(hi, -lo) <= MAX_VALUE)
+    if name in ("weight", "sigma"):
+        return bool(lo >= 0)
+    return True
+
+
 def check_inputs(**arrays) -> None:
     """Raise :class:`~brdf_fit.fitting.problem.FitError` naming the first offending problem
     and sample of a batch's inputs (each (B, M, ...) or None) before anything is fitted: a NaN
@@ -230,7 +249,7 @@ def check_inputs(**arrays) -> None:
     equations), a negative weight or sigma. A file read by :func:`brdf_fit.io.read` has passed
     the same tests with its name and line; these are for arrays built in memory."""
     for name, a in arrays.items():
-        if a is None:
+        if a is None or _clean(name, a):
             continue
         tests = [(~np.isfinite(a), "is not finite")]
         if name == "values":
