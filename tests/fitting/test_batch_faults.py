@@ -89,6 +89,9 @@ def test_faulty_members_leave_good_ones_unchanged_and_are_flagged():
     ("values", (1, 3, 2), np.nan, "problem 1, sample 3: values is not finite"),
     ("values", (2, 0, 0), np.inf, "problem 2, sample 0: values is not finite"),
     ("values", (0, 5, 1), 1e300, "problem 0, sample 5: values exceeds 1e\\+15"),
+    # below -MAX_VALUE: the max/min pre-test (batch._clean) must send it to the element tests
+    ("values", (3, 1, 0), -1e300, "problem 3, sample 1: values exceeds 1e\\+15"),
+    ("sigma", (1, 2, 2), -0.5, "problem 1, sample 2: sigma is negative"),
     ("wi", (3, 7, 0), np.nan, "problem 3, sample 7: wi is not finite"),
     ("wo", (1, 119, 2), -np.inf, "problem 1, sample 119: wo is not finite"),
     ("weight", (2, 4, 1), np.nan, "problem 2, sample 4: weight is not finite"),
