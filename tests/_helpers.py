@@ -80,6 +80,17 @@ def random_dirs(rng, n, lo=1e-3):
     return np.stack([s * np.cos(phi), s * np.sin(phi), mu], -1)
 
 
+def normal_dirs(rng, n, lo=1e-2):
+    """``(n, 3)`` unit vectors (JAX) from normalised Gaussian draws folded into the upper
+    hemisphere, the cosine raised to at least ``lo`` and the vector renormalised (the draws of
+    the table-model tests, tests/models/test_kajiya.py and test_westin.py)."""
+    v = rng.normal(size=(n, 3))
+    v[:, 2] = np.abs(v[:, 2])
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    v[:, 2] = np.maximum(v[:, 2], lo)
+    return jnp.asarray(v / np.linalg.norm(v, axis=1, keepdims=True))
+
+
 def random_angles(rng, n, lo=1e-3, phi_range=(0.0, 2 * np.pi)):
     """``(theta, phi)``: cosines uniform in ``[lo, 1]``, azimuths uniform in ``phi_range``."""
     return np.arccos(rng.uniform(lo, 1.0, n)), rng.uniform(*phi_range, n)

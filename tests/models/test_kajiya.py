@@ -25,6 +25,7 @@ import json
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _helpers import normal_dirs
 
 from brdf_fit.core.fresnel import SchlickFresnel
 from brdf_fit.core.microfacet import Beckmann, SmithHeightCorrelated
@@ -50,14 +51,6 @@ ENSEMBLE_PEAK_TIMES_G = (0.93, 1.03)
 MC_FAST_RMS = 0.06
 #: Monte Carlo, 256 realisations (slow run): measured 0.019, 0.016, 0.019
 MC_SLOW_RMS = 0.03
-
-
-def _dirs(rng, n, lo=1e-2):
-    v = rng.normal(size=(n, 3))
-    v[:, 2] = np.abs(v[:, 2])
-    v /= np.linalg.norm(v, axis=1, keepdims=True)
-    v[:, 2] = np.maximum(v[:, 2], lo)
-    return jnp.asarray(v / np.linalg.norm(v, axis=1, keepdims=True))
 
 
 # ----------------------------------------------------------------------------- geometric optics
@@ -196,7 +189,7 @@ def test_isotropic_table_regenerates_identically():
 def test_model_is_reciprocal_and_finite(preset):
     rng = np.random.default_rng(0)
     m = Kajiya(f0=jnp.asarray([1.0, 0.5, 0.04]), preset=preset)
-    wi, wo = _dirs(rng, 3000), _dirs(rng, 3000)
+    wi, wo = normal_dirs(rng, 3000), normal_dirs(rng, 3000)
     a, b = m.eval(wi, wo), m.eval(wo, wi)
     assert a.shape == (3000, 3)
     assert bool(jnp.all(jnp.isfinite(a))) and bool(jnp.all(a >= 0))

@@ -23,6 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _helpers import normal_dirs
 
 from brdf_fit import registry
 from brdf_fit.models.westin import PRESET_NAMES, Westin, angles
@@ -45,14 +46,6 @@ def _zscores(F, se, target, floor=W.CELL_FLOOR):
     m = (target > floor * target.max()) & (se > 0)
     z = (F[m] - target[m]) / se[m]
     return z
-
-
-def _dirs(rng, n, lo=1e-2):
-    v = rng.normal(size=(n, 3))
-    v[:, 2] = np.abs(v[:, 2])
-    v /= np.linalg.norm(v, axis=1, keepdims=True)
-    v[:, 2] = np.maximum(v[:, 2], lo)
-    return jnp.asarray(v / np.linalg.norm(v, axis=1, keepdims=True))
 
 
 # ----------------------------------------------------------------------------- flat geometry
@@ -179,7 +172,7 @@ def test_velvet_table_regenerates_identically():
 def test_model_is_reciprocal_nonnegative_and_finite():
     rng = np.random.default_rng(0)
     m = Westin(scale=jnp.asarray([1.0, 0.5, 0.2]))
-    wi, wo = _dirs(rng, 3000), _dirs(rng, 3000)
+    wi, wo = normal_dirs(rng, 3000), normal_dirs(rng, 3000)
     ev = jax.jit(lambda m, a, b: m.eval(a, b))
     a, b = ev(m, wi, wo), ev(m, wo, wi)
     assert a.shape == (3000, 3)
@@ -250,7 +243,7 @@ def test_angles():
 
 def test_float32_matches_float64():
     rng = np.random.default_rng(1)
-    wi, wo = _dirs(rng, 500), _dirs(rng, 500)
+    wi, wo = normal_dirs(rng, 500), normal_dirs(rng, 500)
     m = Westin(scale=jnp.asarray(1.0))
     ev = jax.jit(lambda m, a, b: m.eval(a, b))
     a = np.asarray(ev(m, wi, wo))
