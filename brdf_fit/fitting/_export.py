@@ -98,14 +98,12 @@ def signature(args) -> str:
 
 
 def _key(name: str, static: str, sig: str) -> str:
+    """The file name's hash: the program's own parts and the installation's (its
+    :func:`generation`: jax, jaxlib and package versions, source hash)."""
     import jax
-    import jaxlib
 
-    from brdf_fit._version import __version__
-
-    material = repr((name, static, sig, jax.__version__, jaxlib.__version__,
-                     bool(jax.config.jax_enable_x64), jax.default_backend(), __version__,
-                     source_hash()))
+    material = repr((name, static, sig, bool(jax.config.jax_enable_x64), jax.default_backend(),
+                     generation()))
     return hashlib.sha256(material.encode()).hexdigest()[:40]
 
 
