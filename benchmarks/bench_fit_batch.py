@@ -330,14 +330,7 @@ def faults_main(args, command, info) -> int:
               f"{rows[-1]['seconds_faulty']:.3f} s, ratio {rows[-1]['ratio']:.2f}", flush=True)
     info["loadavg_end"] = _loadavg()
     doc = {"command": command, "machine": info, "rows": rows}
-    args.out.mkdir(parents=True, exist_ok=True)
-    jpath = args.out / "fit_batch.json"
-    old = json.loads(jpath.read_text()) if jpath.exists() else {}
-    old["faults"] = doc
-    jpath.write_text(json.dumps(old, indent=1))
-    mpath = args.out / "fit_batch.md"
-    text = mpath.read_text() if mpath.exists() else ""
-    mpath.write_text(_replace_section(text, FAULT_HEAD, faults_markdown(doc)).lstrip("\n"))
+    mpath = _write_section(args.out, "faults", doc, FAULT_HEAD, faults_markdown(doc))
     print(f"wrote {mpath}")
     return 0 if all(r["max_abs_diff_good_params"] <= 1e-6 for r in rows) else 1
 
@@ -528,16 +521,24 @@ def stream_main(args, command, info) -> int:
                                   for m in ("scipy-trf", "scipy-lm")) <= 1e-6)
     info["loadavg_end"] = _loadavg()
     doc = {"command": command, "machine": info, **res}
-    args.out.mkdir(parents=True, exist_ok=True)
-    jpath = args.out / "fit_batch.json"
-    old = json.loads(jpath.read_text()) if jpath.exists() else {}
-    old["stream"] = doc
-    jpath.write_text(json.dumps(old, indent=1))
-    mpath = args.out / "fit_batch.md"
-    mpath.write_text(_replace_section(mpath.read_text() if mpath.exists() else "",
-                                      STREAM_HEAD, stream_markdown(doc)))
+    mpath = _write_section(args.out, "stream", doc, STREAM_HEAD, stream_markdown(doc))
     print(f"ratio {res['ratio_scipy_over_stream']:.1f}x vs {best}; wrote {mpath}")
     return 0 if res["accuracy_ok"] else 1
+
+
+def _write_section(out, key, doc, head, markdown):
+    """``doc`` as ``key`` of ``out/fit_batch.json`` and ``markdown`` as the section ``head`` of
+    ``out/fit_batch.md``, the other sections of both files kept (the --faults and --stream
+    runs add to the main run's results); the markdown's path."""
+    out.mkdir(parents=True, exist_ok=True)
+    jpath = out / "fit_batch.json"
+    old = json.loads(jpath.read_text()) if jpath.exists() else {}
+    old[key] = doc
+    jpath.write_text(json.dumps(old, indent=1))
+    mpath = out / "fit_batch.md"
+    text = mpath.read_text() if mpath.exists() else ""
+    mpath.write_text(_replace_section(text, head, markdown).lstrip("\n"))
+    return mpath
 
 
 def _replace_section(text, head, section):
