@@ -130,6 +130,7 @@ from brdf_fit.fitting import guess as _guess
 from brdf_fit.fitting._lm import LMState
 from brdf_fit.fitting._schedule import (
     CHUNK_SCHEDULE,
+    CHUNK_SCHEDULE_SHARED,
     GROUP,
     MAX_BLOCK,
     block_lanes,
@@ -309,10 +310,15 @@ def fit_batch(
     as in :func:`~brdf_fit.fitting.single.fit`. ``max_zenith_deg`` masks samples (weight 0)
     instead of dropping them, so the sample count stays M. ``chunk_steps``: iterations per
     chunk before the stragglers are compacted (``"auto"``: the lengths of
-    :data:`CHUNK_SCHEDULE`, then its last; None: one chunk of ``max_steps``). ``group``: lanes
+    :data:`CHUNK_SCHEDULE`, or :data:`CHUNK_SCHEDULE_SHARED` after the shared-geometry guess,
+    then its last; None: one chunk of ``max_steps``). ``group``: lanes
     per while_loop (None: the whole block; with ``chunk_steps=None`` that is one plain vmapped
     solve). ``guess``: ``"grid"`` or ``"none"`` (see :mod:`brdf_fit.fitting.guess`);
-    ``max_steps=0`` returns the start itself. ``shard``: lay the batch over all
+    ``max_steps=0`` returns the start itself; with one geometry (wi, wo (M, 3)), the same
+    start and fixed values for every problem and a metric of
+    :data:`~brdf_fit.fitting.guess.SHARED_METRICS`, the guess is the finer shared one
+    (:data:`~brdf_fit.fitting.guess.SHARED_CANDIDATES` candidates on up to
+    :data:`~brdf_fit.fitting.guess.SHARED_SAMPLES` samples). ``shard``: lay the batch over all
     ``jax.devices()`` (default: when there are several). ``progress``: called as
     ``progress(finished, B, stage)`` at the start and after every chunk (the CLI's progress
     bar). ``dtype``: of the arrays and the solve (default: JAX's default float).
@@ -382,8 +388,17 @@ def fit_batch(
         shard = len(jax.devices()) > 1
     p = u0.shape[1]
     state = LMState.start(u0, dtype, max_steps, rtol, atol)
+    vary = tuple(n for n in free if n not in init) if guess == "grid" else ()
+    # one geometry, the same start and fixed values in every problem (no per-problem init or
+    # fix) and a metric whose model side is data-free: the guess's candidate model values are
+    # the same for every problem, computed once, so a finer design on more samples costs
+    # little (guess.shared_losses) and leaves fewer steps (CHUNK_SCHEDULE_SHARED)
+    shared = (bool(vary) and wi.shape[0] == 1 and metric in _guess.SHARED_METRICS
+              and bool(np.all(state.u == state.u[:1]))
+              and all(bool(np.all(v == v[:1])) for v in fixed.values()))
     try:
-        schedule = chunk_schedule(chunk_steps, max_steps)
+        schedule = chunk_schedule(chunk_steps, max_steps,
+                                  CHUNK_SCHEDULE_SHARED if shared else CHUNK_SCHEDULE)
     except ValueError as e:
         raise FitError(str(e)) from None
     rounds = []
@@ -400,7 +415,10 @@ def fit_batch(
     # read: every lane index is < B), so that every batch of one block-size class has the same
     # shapes and reuses one compilation (a batch of 5 and one of 7 problems: both 16 rows)
     rows = int(math.ceil(B / block) * block)
-    raw = tuple(_pad_rows(a, B, rows) for a in raw)
+    # (a geometry of leading axis 1 stays shared even when B = 1: gather() then keeps it once
+    # per group, and the shared guess sees it as one geometry)
+    raw = tuple(a if i < 2 and a.shape[0] == 1 else _pad_rows(a, B, rows)
+                for i, a in enumerate(raw))
 
     # the data side of the metric once (brdf_fit.fitting.problem.metric_parts), on the device
     data = run.prepare(raw)
@@ -413,22 +431,29 @@ def fit_batch(
         rounds.append({"lanes": int(math.ceil(B / block) * block), "active": B, "steps": 0,
                        **kw})
 
-    vary = tuple(n for n in free if n not in init) if guess == "grid" else ()
     if vary:  # coarse design over the parameters without a start value (fitting.guess)
         ts = time.perf_counter()
-        cands = _guess.design(problem, state.u, vary, defaults).astype(dtype)
-        lay = _guess.layout(problem, vary)
+        lay = _guess.layout(problem, vary, n_cand := (_guess.SHARED_CANDIDATES if shared
+                                                        else _guess.GUESS_CANDIDATES))
         chan_of = _guess.channel_index(problem, C)
-        sub = _guess.subsample(M)
-        sub_data = run.subsample(data, sub)
-        u, q = blocked(run, run.guess(lay, chan_of), every, block,
-                       lambda pad, n: (cands[pad], {k: v[pad] for k, v in fixed.items()}),
-                       (sub_data, data))
-        state = dataclasses.replace(state, u=u)
-        if q:
-            state = state.with_quad(q)
+        sub = _guess.subsample(M, _guess.SHARED_SAMPLES if shared else _guess.GUESS_SAMPLES)
+        if shared:  # one set of candidates for all; the carried quantities by run.init below
+            cands = _guess.design(problem, state.u[:1], vary, defaults, n_cand).astype(dtype)
+            fn = run.shared_guess(lay, chan_of, block // run.ndev)
+            u = fn(run.put(np.arange(rows, dtype=np.int32)), data, jnp.asarray(cands[0]),
+                   {k: jnp.asarray(v[0]) for k, v in fixed.items()},
+                   None if sub.size == M else jnp.asarray(sub))
+            state = dataclasses.replace(state, u=np.array(u[:B]))
+        else:
+            cands = _guess.design(problem, state.u, vary, defaults, n_cand).astype(dtype)
+            u, q = blocked(run, run.guess(lay, chan_of), every, block,
+                           lambda pad, n: (cands[pad], {k: v[pad] for k, v in fixed.items()}),
+                           (run.subsample(data, sub), data))
+            state = dataclasses.replace(state, u=u)
+            if q:
+                state = state.with_quad(q)
         record(guess=True, candidates=int(cands.shape[1]), samples=int(sub.size), lane_steps=0,
-               seconds=round(time.perf_counter() - ts, 4))
+               shared=shared, seconds=round(time.perf_counter() - ts, 4))
     if solver == "batch-lm" and state.A is None:  # the carried quantities at the start
         ts = time.perf_counter()
         state = state.with_quad(blocked(run, run.init, every, block, whole(state.u), data))

@@ -876,8 +876,15 @@ class FitProblem:
     def residuals_prepared(self, params, prep):
         """Residuals ``(M, C)`` (not flattened) of the model built from ``params`` (all,
         physical) on prepared data (:meth:`prepare`)."""
-        wi, wo, mul, gf, scale = prep
-        m = self.build(params).eval(wi, wo)
+        wi, wo = prep[:2]
+        return self.residuals_of_values(self.build(params).eval(wi, wo), prep)
+
+    def residuals_of_values(self, m, prep):
+        """Residuals ``(M, C)`` of model values ``m`` ((M, C), or (M,) for a model without
+        channels) on prepared data (:meth:`prepare`): the metric's half of
+        :meth:`residuals_prepared` (the grid guess reuses model values computed once for a
+        whole batch of one geometry, :func:`brdf_fit.fitting.guess.shared_losses`)."""
+        mul, gf, scale = prep[2:]
         if m.ndim == 1:
             m = m[:, None]
         r = METRIC_H[self.metric](m * mul) - gf

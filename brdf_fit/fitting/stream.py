@@ -42,6 +42,7 @@ every chunk of every block; a callable is called as ``progress(done, total, stag
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
 import hashlib
 import json
@@ -65,9 +66,11 @@ __all__ = ["fit_stream", "StreamResult", "block_size_for", "plan_blocks", "block
 MEMORY_MB = 512
 #: Bytes per sample and channel a block holds at the peak (float64): the source's values, the
 #: float copy fit_batch makes, the device copies (values, the weight mask, the prepared
-#: log1p(f cos) and scale) and the solver's gathers; measured with the benchmark's GGX problems
-#: (peak RSS growth per problem of a 16,384-problem block, shared geometry) and rounded up.
-BYTES_PER_VALUE = 80
+#: log1p(f cos) and scale), the solver's gathers, and the next block's values read meanwhile
+#: (prefetch); measured with the benchmark's GGX problems (peak RSS growth of the whole
+#: process over its size before the stream, 16,144-problem blocks, shared geometry, 2 host
+#: devices: 92 bytes with prefetch, 87 without, 2026-12-03) and rounded up.
+BYTES_PER_VALUE = 96
 #: ... and per sample of per-problem geometry (wi, wo and their device copies)
 BYTES_PER_DIRECTION_PAIR = 160
 #: Blocks are multiples of this many problems (whole groups on every device)
@@ -81,7 +84,7 @@ def block_size_for(n_samples: int, n_channels: int, shared_geometry: bool = True
     """Problems per block that fit in ``memory_mb``: ``memory_mb`` over
     :data:`BYTES_PER_VALUE` x M x C (+ :data:`BYTES_PER_DIRECTION_PAIR` x M without shared
     geometry), a multiple of :data:`BLOCK_UNIT` (at least one unit). GGX, 300 samples, RGB,
-    shared geometry, 512 MB: 7,456 problems."""
+    shared geometry, 512 MB: 6,208 problems."""
     per = n_samples * (BYTES_PER_VALUE * n_channels
                        + (0 if shared_geometry else BYTES_PER_DIRECTION_PAIR))
     n = int(memory_mb * 2**20 // max(per, 1))
@@ -267,7 +270,7 @@ def _slicer(name, a, n, per_problem_ndim, m):
 def fit_stream(values, model, out=None, *, wi=None, wo=None, weight=None, sigma=None,
                n_problems: int | None = None, block_size: int | None = None,
                memory_mb: float = MEMORY_MB, resume: bool = False, progress=True,
-               meta: dict | None = None, **fit_kw) -> StreamResult:
+               meta: dict | None = None, prefetch: bool = True, **fit_kw) -> StreamResult:
     """Fit ``model`` to N problems streamed from ``values`` in equal blocks (see the module
     docstring): ``values`` an array-like (N, M, C) / (N, M) or a callable ``values(start, stop)``
     (then ``n_problems`` is required); ``wi``, ``wo``, ``weight``, ``sigma`` shared or
@@ -275,7 +278,10 @@ def fit_stream(values, model, out=None, *, wi=None, wo=None, weight=None, sigma=
     memory); ``block_size`` (default :func:`block_size_for` of ``memory_mb``); ``resume``:
     continue the run in ``out``; ``progress``: True (a bar on stderr), a callable
     ``progress(done, total, stage)``, or None/False; ``meta``: JSON-able facts about the
-    source recorded in the manifest and required equal on resume (the CLI: its file list).
+    source recorded in the manifest and required equal on resume (the CLI: its file list);
+    ``prefetch``: read the next block on a worker thread while this one is fitted (a callable
+    source is then called from that thread, one call at a time, in block order; False: every
+    block is read on the calling thread between fits).
     Other keywords go to :func:`~brdf_fit.fitting.batch.fit_batch` (``fix`` / ``init``: values
     shared by all problems; a per-problem array would not match a block)."""
     t0 = time.perf_counter()
@@ -357,6 +363,41 @@ def fit_stream(values, model, out=None, *, wi=None, wo=None, weight=None, sigma=
         if not mpath.exists():
             _write_atomic(mpath, lambda fh: fh.write(json.dumps(manifest, indent=1).encode()))
 
+    def load(k):
+        """Block ``k``'s arrays, as fit_batch takes them (padded to ``bs`` problems)."""
+        s, e = k * bs, min(N, (k + 1) * bs)
+        n = e - s
+        blk = values(s, e) if callable_source else {}
+        blk = blk if isinstance(blk, dict) else {"values": blk}
+        arrays = {}
+        for name in ("values", "wi", "wo", "weight", "sigma"):
+            a = blk.get(name)
+            if a is None and takes.get(name) is not None:
+                a = takes[name](s, e)
+            if a is not None:
+                a = np.asarray(a, float)
+                shared = name in ("wi", "wo") and a.ndim == 2
+                if not shared and name != "values" and a.ndim == 2 and a.shape[0] != n:
+                    shared = True  # (M, C) weight / sigma shared by every problem
+                if not shared:
+                    if a.shape[0] != n:
+                        raise FitError(f"fit_stream: block {k}: {name} has {a.shape[0]} "
+                                       f"problems, expected {n}")
+                    if n < bs:  # pad by repeating the last problem: one shape, one compile
+                        a = np.concatenate([a, np.repeat(a[-1:], bs - n, axis=0)])
+                elif name in ("weight", "sigma"):
+                    a = np.broadcast_to(a.reshape(a.shape[0], -1)[None],
+                                        (bs, *a.reshape(a.shape[0], -1).shape))
+            arrays[name] = a
+        if "wi" not in arrays or "wo" not in arrays:
+            raise FitError(f"fit_stream: block {k}: no wi / wo (pass them or return them "
+                           "from the source)")
+        return n, arrays
+
+    # the next block is read (the source called, its arrays converted and padded) on a worker
+    # thread while this one is fitted: one call at a time, in block order
+    pool = (concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="fit_stream-read")
+            if prefetch and n_blocks - len(done_blocks) > 1 else None)
     bar = ProgressBar() if progress is True else (progress or None)
     res = StreamResult(model_name=src.name, n_problems=N, block_size=bs, n_blocks=n_blocks,
                        fitted=[], skipped=sorted(done_blocks), seconds=0.0,
@@ -367,36 +408,14 @@ def fit_stream(values, model, out=None, *, wi=None, wo=None, weight=None, sigma=
     try:
         if bar is not None:
             bar(finished, N, "start")
-        for k in range(n_blocks):
-            if k in done_blocks:
-                continue
-            s, e = k * bs, min(N, (k + 1) * bs)
-            n = e - s
-            blk = values(s, e) if callable_source else {}
-            blk = blk if isinstance(blk, dict) else {"values": blk}
-            arrays = {}
-            for name in ("values", "wi", "wo", "weight", "sigma"):
-                a = blk.get(name)
-                if a is None and takes.get(name) is not None:
-                    a = takes[name](s, e)
-                if a is not None:
-                    a = np.asarray(a, float)
-                    shared = name in ("wi", "wo") and a.ndim == 2
-                    if not shared and name != "values" and a.ndim == 2 and a.shape[0] != n:
-                        shared = True  # (M, C) weight / sigma shared by every problem
-                    if not shared:
-                        if a.shape[0] != n:
-                            raise FitError(f"fit_stream: block {k}: {name} has {a.shape[0]} "
-                                           f"problems, expected {n}")
-                        if n < bs:  # pad by repeating the last problem: one shape, one compile
-                            a = np.concatenate([a, np.repeat(a[-1:], bs - n, axis=0)])
-                    elif name in ("weight", "sigma"):
-                        a = np.broadcast_to(a.reshape(a.shape[0], -1)[None],
-                                            (bs, *a.reshape(a.shape[0], -1).shape))
-                arrays[name] = a
-            if "wi" not in arrays or "wo" not in arrays:
-                raise FitError(f"fit_stream: block {k}: no wi / wo (pass them or return them "
-                               "from the source)")
+        todo = [k for k in range(n_blocks) if k not in done_blocks]
+        pending = pool.submit(load, todo[0]) if pool is not None and todo else None
+        for i, k in enumerate(todo):
+            if pending is not None:  # read while the previous block was fitted
+                n, arrays = pending.result()
+                pending = pool.submit(load, todo[i + 1]) if i + 1 < len(todo) else None
+            else:
+                n, arrays = load(k)
 
             def inner(d, total, stage, base=finished, n=n, k=k):
                 if bar is not None:
@@ -421,6 +440,8 @@ def fit_stream(values, model, out=None, *, wi=None, wo=None, weight=None, sigma=
             if bar is not None:
                 bar(finished, N, f"block {k + 1}/{n_blocks} written")
     finally:
+        if pool is not None:  # an error or interrupt: the block being read is abandoned
+            pool.shutdown(wait=False, cancel_futures=True)
         if bar is not None and hasattr(bar, "close"):
             bar.close()
     if res.n_params == 0 and res.fitted == [] and path is not None and n_blocks:

@@ -396,6 +396,45 @@ def test_guess_pseudo_channels_equal_candidate_by_candidate(name):
     np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-300)
 
 
+@pytest.mark.parametrize("metric,weights,cos_weight", [
+    ("log", False, False), ("log", True, False), ("cuberoot", True, True),
+    ("absolute", False, True)])
+def test_shared_guess_losses_equal_problem_by_problem(metric, weights, cos_weight):
+    """guess.shared_losses (candidate values computed once for one geometry, every problem's
+    losses by matrix products of the expanded square) equals the per-problem losses; the
+    expansion's cancellation stays at rounding of the terms it subtracts."""
+    from brdf_fit.fitting import guess as G
+    from brdf_fit.fitting.problem import METRIC_H, RELATIVE_FLOOR, FitProblem
+
+    entry = registry.get("ggx")
+    rng = np.random.default_rng(5)
+    B, m = 6, 40
+    wi, wo = directions(rng, m), directions(rng, m)
+    prob = FitProblem.of("ggx", ("alpha", "f0"), ((), (3,)), metric=metric,
+                         cos_weight=cos_weight)
+    f = np.asarray(entry.build(alpha=0.2, f0=[0.9, 0.5, 0.1]).eval(jnp.asarray(wi),
+                                                                   jnp.asarray(wo)))
+    f = f[None] * np.exp(0.2 * rng.standard_normal((B, m, 3)))
+    w = rng.uniform(0.5, 2.0, f.shape) * (rng.uniform(size=f.shape) > 0.2) if weights else None
+    prep = prob.prepare((wi[None], wo[None], f, w, None,
+                         RELATIVE_FLOOR * f.max(axis=(1, 2))), jnp)
+    u0 = prob.layout.inverse(entry.defaults(), lead=())
+    lay = G.layout(prob, prob.free, G.SHARED_CANDIDATES)
+    cands = jnp.asarray(G.design(prob, u0, prob.free, entry.defaults(), G.SHARED_CANDIDATES))
+    vals = G.candidate_values(prob, cands, (prep[0][0], prep[1][0]), {}, lay, 3)
+    got = np.asarray(G.shared_losses(prob, vals, prep[2][0], G.shared_terms(prep[3], prep[4])))
+    for b in range(B):
+        pb = tuple(None if x is None else (x[0] if x.shape[0] == 1 else x[b]) for x in prep)
+        want = np.asarray(G.candidate_losses(prob, cands, pb, {}, lay, None))
+        # the expanded terms are T = 0.5 sum s^2 (H^2 + g(f)^2): m eps T of rounding, at most
+        H = np.asarray(METRIC_H[metric](vals * pb[2]))
+        s2 = 1.0 if pb[4] is None else np.asarray(pb[4]) ** 2
+        T = 0.5 * np.sum(s2 * (H ** 2 + np.asarray(pb[3]) ** 2), axis=1)
+        np.testing.assert_allclose(got[b], want, rtol=0, atol=m * 2.3e-16 * T.max())
+    with pytest.raises(ValueError, match="shared"):  # mul per problem (relative): refused
+        G.shared_losses(prob, vals, prep[3], G.shared_terms(prep[3], None))
+
+
 def test_float32_normal_equations_equal_the_einsum_form():
     """_lm.normal's float32 path (sample axis last, issue 15) forms the same J^T J and J^T r as
     the einsum of the float64 path, to float32 rounding (the channel parameter's Q included)."""

@@ -134,15 +134,54 @@ def test_bad_output_is_refused_before_any_work(problems, tmp_path):
 
 def test_shared_geometry_equals_per_problem_geometry(problems):
     """(M, 3) directions shared by every problem (vmapped with in_axes=None) give the fits of
-    the same directions repeated per problem, up to rounding."""
+    the same directions repeated per problem, up to rounding, from the same start; with the
+    grid guess (finer when the geometry is shared: guess.SHARED_CANDIDATES) the same optimum
+    to the solver's tolerance."""
+    from brdf_fit.fitting import guess as G
+
     wi, wo, v = problems
-    a = fit_batch(wi, wo, v[:BS], "ggx")
-    b = fit_batch(np.broadcast_to(wi, (BS, M, 3)), np.broadcast_to(wo, (BS, M, 3)), v[:BS],
-                  "ggx")
+    wib, wob = np.broadcast_to(wi, (BS, M, 3)), np.broadcast_to(wo, (BS, M, 3))
+    a = fit_batch(wi, wo, v[:BS], "ggx", guess="none")
+    b = fit_batch(wib, wob, v[:BS], "ggx", guess="none")
     np.testing.assert_allclose(a.loss, b.loss, rtol=1e-9, atol=1e-14)
     np.testing.assert_allclose(a.params["alpha"], b.params["alpha"], rtol=1e-6)
     np.testing.assert_allclose(a.params["f0"], b.params["f0"], atol=1e-6)
     assert (a.converged == b.converged).all()
+    a = fit_batch(wi, wo, v[:BS], "ggx")
+    b = fit_batch(wib, wob, v[:BS], "ggx")
+    guesses = [[r for r in x.rounds if r.get("guess")][0] for x in (a, b)]
+    assert [g["shared"] for g in guesses] == [True, False]
+    assert guesses[0]["candidates"] > guesses[1]["candidates"] == G.GUESS_CANDIDATES
+    assert (a.converged == b.converged).all()  # one problem slides onto f0's bound in both
+    # both stopped by the default tolerances (rtol = atol = 1e-10 on the loss change)
+    np.testing.assert_allclose(a.loss, b.loss, rtol=1e-8, atol=1e-10)
+    np.testing.assert_allclose(a.params["alpha"], b.params["alpha"], rtol=1e-5)
+    np.testing.assert_allclose(a.params["f0"], b.params["f0"], atol=1e-5)
+
+
+def test_prefetch_reads_ahead_in_order_and_changes_nothing(problems):
+    """The next block is read on one worker thread while the current one is fitted, in block
+    order; the results equal reading every block on the calling thread (prefetch=False)."""
+    import threading
+
+    wi, wo, v = problems
+    seen = {True: [], False: []}
+
+    def source(flag):
+        def read(s, e):
+            seen[flag].append((s, threading.current_thread() is threading.main_thread()))
+            return v[s:e]
+        return read
+
+    a = fit_stream(source(True), "ggx", None, n_problems=N, wi=wi, wo=wo, block_size=BS,
+                   progress=False)
+    b = fit_stream(source(False), "ggx", None, n_problems=N, wi=wi, wo=wo, block_size=BS,
+                   progress=False, prefetch=False)
+    # the first call (shape probe) is on the calling thread; then blocks 0, 1, 2 in order
+    assert [s for s, _ in seen[True]] == [s for s, _ in seen[False]] == [0, 0, BS, 2 * BS]
+    assert [m for _, m in seen[True]] == [True, False, False, False]
+    assert all(m for _, m in seen[False])
+    _same(a.result(), b.result())
 
 
 def test_block_size_from_memory_budget():
