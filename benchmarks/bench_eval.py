@@ -19,6 +19,22 @@ Implementations timed per batch size N (all float32, x64 left disabled):
                  float32 array of 4.5 N elements: 18 bytes read and 18 written per pair, the 36
                  bytes per evaluation of the (N, 3) kernel (24 read, 12 written), as one
                  contiguous stream: the memory-bandwidth bound of the machine through XLA.
+``jax-separable`` (GGX only) the public API's ``MicrofacetBRDF(GGX, SmithSeparable,
+                 ConductorFresnel)``: the function Mitsuba's ``roughconductor`` computes (the
+                 registry's ``ggx-conductor`` has the height-correlated Smith G).
+``mitsuba-llvm`` (GGX only, when Mitsuba 3 and an LLVM it can use are there) Mitsuba 3's
+                 ``roughconductor`` (``distribution`` ggx, the same alpha and RGB eta, k) through
+                 ``BSDF.eval`` in the ``llvm_ad_rgb`` variant, on resident inputs made opaque
+                 (``dr.make_opaque``), every call traced and evaluated (``dr.eval``,
+                 ``dr.sync_thread``; the compiled kernel comes from Dr.Jit's cache after the
+                 first call). It returns ``f cos(theta)`` of its ``wo`` (our ``wi``): divided
+                 by ``wi.z`` for the check, which is against ``jax-separable`` (an independent
+                 implementation of the same formulas, <= 1e-4). Mitsuba's LLVM backend needs a
+                 libLLVM it can load (version 19 works, 15 and 16 abort on ``fmaximum``):
+                 Debian's package unpacked anywhere is enough,
+                 ``apt-get download libllvm19 && dpkg-deb -x libllvm19_*.deb /tmp/llvm19``, then
+                 ``--libllvm /tmp/llvm19/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1`` (or
+                 ``DRJIT_LIBLLVM_PATH``). Without them the rows are left out and said so.
 ``roof-n3``      (GGX only, a roofline) ``jax.jit(lambda a, b: a + b)`` on the (N, 3) inputs: the
                  same 36 bytes per pair in the kernel's layout. XLA CPU (jaxlib 0.10) emits a
                  lone (N, 3) elementwise op with its tiled emitter, one 3-float row per
@@ -65,7 +81,9 @@ import numpy as np
 
 import brdf_fit
 from brdf_fit import registry
-from brdf_fit.core.fresnel import conductor
+from brdf_fit.core.fresnel import ConductorFresnel, conductor
+from brdf_fit.core.microfacet import GGX, SmithSeparable
+from brdf_fit.models import MicrofacetBRDF
 
 ALPHA = 0.3
 RTOL = 1e-4
@@ -401,6 +419,103 @@ def jax_roof_n3(a, b):
     return a + b
 
 
+# ----------------------------------------------------------------------------- Mitsuba 3
+
+#: Mitsuba 3 in its ``llvm_ad_rgb`` variant, once loaded by :func:`load_mitsuba`; ``why``: the
+#: reason it is not there
+MITSUBA: dict = {"mi": None, "dr": None, "why": "not tried", "version": None, "libllvm": None}
+
+
+#: A child process that evaluates the benchmark's kernel in Mitsuba's LLVM variant on a few
+#: pairs: Dr.Jit with an LLVM it cannot use aborts the process (LLVM 15 and 16 on ``fmaximum``),
+#: so the benchmark tries it in a child first
+_PROBE = """
+import mitsuba as mi, drjit as dr
+mi.set_variant("llvm_ad_rgb")
+b = mi.load_dict({"type": "roughconductor", "distribution": "ggx", "alpha": 0.3,
+                  "eta": {"type": "rgb", "value": [0.2, 0.4, 1.4]},
+                  "k": {"type": "rgb", "value": [3.5, 2.4, 1.8]}})
+si = dr.zeros(mi.SurfaceInteraction3f, 16)
+si.wi = dr.normalize(mi.Vector3f(0.3, 0.1, 0.9))
+si.sh_frame = mi.Frame3f(mi.Vector3f(0.0, 0.0, 1.0))
+v = b.eval(mi.BSDFContext(), si, dr.normalize(mi.Vector3f(-0.2, 0.3, 0.8)))
+dr.eval(v)
+print("ok", float(v[0][0]))
+"""
+
+
+def load_mitsuba(libllvm: str | None) -> None:
+    """Import Mitsuba 3 and select ``llvm_ad_rgb`` (``libllvm``: the libLLVM to use, else
+    ``DRJIT_LIBLLVM_PATH`` or Dr.Jit's own search), after a child process has evaluated the
+    kernel with it (:data:`_PROBE`); on failure record why."""
+    import subprocess
+
+    if libllvm:
+        os.environ["DRJIT_LIBLLVM_PATH"] = libllvm
+    try:
+        child = subprocess.run([sys.executable, "-c", _PROBE], capture_output=True, text=True,
+                               timeout=300)
+    except (OSError, subprocess.TimeoutExpired) as e:
+        MITSUBA["why"] = f"probe failed: {e}"
+        return
+    if child.returncode != 0 or not child.stdout.startswith("ok"):
+        last = (child.stderr.strip().splitlines() or [f"exit status {child.returncode}"])[-1]
+        MITSUBA["why"] = (f"Mitsuba's llvm variant did not run here ({last[:160]}); give a "
+                          "libLLVM 19 with --libllvm (see the module docstring)")
+        return
+    try:
+        import drjit as dr
+        import mitsuba as mi
+
+        mi.set_variant("llvm_ad_rgb")
+        x = dr.arange(mi.Float, 4)
+        dr.eval(x * x)
+    except Exception as e:  # ImportError, or the LLVM backend failing to start
+        MITSUBA["why"] = f"{type(e).__name__}: {e}".splitlines()[0][:200]
+        return
+    MITSUBA.update(mi=mi, dr=dr, why=None, version=mi.__version__,
+                   libllvm=os.environ.get("DRJIT_LIBLLVM_PATH"))
+
+
+class MitsubaRoughConductor:
+    """Mitsuba 3's ``roughconductor`` (GGX, separable Smith G, exact conductor Fresnel) at
+    ``(wi, wo)`` pairs held as resident Dr.Jit arrays; a call traces ``BSDF.eval`` and
+    evaluates it (the kernel compiled once, then taken from Dr.Jit's cache) and waits for it.
+    :meth:`values` converts the result to our convention: ``f`` (N, 3), float32."""
+
+    def __init__(self, alpha, eta, k, wi, wo):
+        mi, dr = MITSUBA["mi"], MITSUBA["dr"]
+        self.dr = dr
+        self.bsdf = mi.load_dict({
+            "type": "roughconductor", "distribution": "ggx", "alpha": float(alpha),
+            "eta": {"type": "rgb", "value": [float(x) for x in eta]},
+            "k": {"type": "rgb", "value": [float(x) for x in k]}})
+        self.ctx = mi.BSDFContext()
+        n = wi.shape[0]
+        si = dr.zeros(mi.SurfaceInteraction3f, n)
+        si.wi = mi.Vector3f(wo[:, 0], wo[:, 1], wo[:, 2])  # Mitsuba's wi: toward the viewer
+        si.sh_frame = mi.Frame3f(mi.Vector3f(0.0, 0.0, 1.0))
+        self.si = si
+        self.wl = mi.Vector3f(wi[:, 0], wi[:, 1], wi[:, 2])  # its wo: toward the light
+        dr.make_opaque(self.si, self.wl)
+        self.cos_i = wi[:, 2].astype(np.float64)
+
+    def _eval(self):
+        v = self.bsdf.eval(self.ctx, self.si, self.wl)
+        self.dr.eval(v)
+        self.dr.sync_thread()
+        return v
+
+    def __call__(self):  # timed; the result is ready when this returns
+        self._eval()
+
+    def values(self) -> np.ndarray:
+        v = self._eval()
+        fc = np.stack([np.asarray(v[c], np.float64) for c in range(3)], -1)
+        c = self.cos_i[:, None]
+        return np.where(c > 0, fc / np.where(c > 0, c, 1.0), 0.0).astype(F32)
+
+
 # ----------------------------------------------------------------------------- checks
 
 
@@ -559,9 +674,12 @@ def build_cases(n: int, rng: np.random.Generator, dirs=None):
     np_ggx = NumpyGGXConductor(ALPHA, ALPHA, eta, k)
     np_lam = NumpyLambert(np.asarray(lam.rho))
 
+    sep = brdf_fit.astype(MicrofacetBRDF(distribution=GGX(ALPHA), masking=SmithSeparable(),
+                                         fresnel=ConductorFresnel(eta, k)), jnp.float32)
     models = {
         "ggx-conductor": {
             "jax": (jax_model_eval, (ggx, wi, wo)),
+            "jax-separable": (jax_model_eval, (sep, wi, wo)),
             "numpy": (np_ggx, (wi_np, wo_np)),
             "numpy-alloc": (np_ggx.eval_alloc, (wi_np, wo_np)),
             "jax-unpacked": (jax_ggx_unpacked, (params, wi, wo)),
@@ -574,6 +692,9 @@ def build_cases(n: int, rng: np.random.Generator, dirs=None):
             "numpy": (np_lam, (wi_np, wo_np)),
         },
     }
+    if MITSUBA["mi"] is not None:
+        models["ggx-conductor"]["mitsuba-llvm"] = (MitsubaRoughConductor(ALPHA, eta, k, wi_np,
+                                                                         wo_np), ())
     return models
 
 
@@ -587,6 +708,17 @@ def check(models: dict, n: int) -> dict:
             raise AssertionError(f"{model}: brdf_fit returned {ref.dtype}, expected float32")
         for name, (fn, args) in cases.items():
             if name == "jax" or name.startswith("roof-"):
+                continue
+            if name == "jax-separable":  # another function (separable G): checked by Mitsuba
+                continue
+            if name == "mitsuba-llvm":  # the same function as jax-separable
+                sfn, sargs = cases["jax-separable"]
+                out, want = fn.values(), np.asarray(sfn(*sargs))
+                err = max_rel_err(out, want)
+                errs[f"{model}/{name} vs jax-separable"] = err
+                if not err <= RTOL:
+                    raise AssertionError(f"{model}/{name} disagrees with jax-separable at N={n}: "
+                                         f"max relative error {err:.3e} > {RTOL:g}")
                 continue
             out = np.asarray(_block(fn(*args)))
             if out.dtype != np.float32:
@@ -623,6 +755,8 @@ def compute_ratios(rows: list) -> list:
             "normsum_slowdown": ("jax-normsum", "jax-unpacked"),
             "library_over_unpacked": ("jax", "jax-unpacked"),
             "jax_over_roofline": ("roof-1d", "jax"),
+            "jax_over_mitsuba": ("mitsuba-llvm", "jax"),
+            "separable_over_mitsuba": ("mitsuba-llvm", "jax-separable"),
         }
         for key, (num, den) in pairs.items():
             if (model, n, num) in by and (model, n, den) in by:
@@ -660,7 +794,8 @@ def write_markdown(path: Path, command: str, info: dict, rows: list, ratios: lis
         "directions uniform on the upper hemisphere",
         f"- {args.repeats} samples per implementation and size (interleaved), each sample "
         f">= {args.min_time:g} s of back-to-back calls, every call `block_until_ready()`",
-        f"- every implementation agrees with `model.eval` to <= {RTOL:g} relative "
+        f"- every implementation agrees with `model.eval` (`mitsuba-llvm`: with "
+        f"`jax-separable`) to <= {RTOL:g} relative "
         "(checked in the run on the benchmark inputs and on full-sphere directions with "
         "degenerate pairs; max errors in eval.json)",
         f"- CPU busy just before the start (all cores, this process asleep): "
@@ -673,11 +808,19 @@ def write_markdown(path: Path, command: str, info: dict, rows: list, ratios: lis
         "normsum slowdown = t_jax-normsum / t_jax-unpacked; library/unpacked = t_jax / "
         "t_jax-unpacked (> 1: the library's guarded kernel is slower than the hand-written one); "
         "jax/roofline = t_roof-1d / t_jax (fraction of the memory-bandwidth bound reached: "
-        "`roof-1d` moves the kernel's 36 bytes per pair, see the implementations below).",
+        "`roof-1d` moves the kernel's 36 bytes per pair, see the implementations below); "
+        "jax/mitsuba = t_mitsuba-llvm / t_jax (> 1: brdf_fit faster than Mitsuba 3's LLVM "
+        "kernel; the registry `ggx-conductor` has the height-correlated Smith G, Mitsuba the "
+        "separable one, the same work up to a few operations) and separable/mitsuba = "
+        "t_mitsuba-llvm / t_jax-separable (the same function as Mitsuba's). "
+        + (f"Mitsuba {info['mitsuba']['version']}, `llvm_ad_rgb`, libLLVM "
+           f"`{info['mitsuba']['libllvm']}`." if info["mitsuba"]["why"] is None else
+           f"Mitsuba rows left out: {info['mitsuba']['why']}."),
         "",
         "| model | N | jax/numpy (median) | jax/numpy (best) | jax/numpy-alloc (median) "
-        "| normsum slowdown (median) | library/unpacked (median) | jax/roofline (median) |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|",
+        "| normsum slowdown (median) | library/unpacked (median) | jax/roofline (median) "
+        "| jax/mitsuba (median) | jax/mitsuba (best) | separable/mitsuba (median) |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
 
     def cell(rec, key, bold=False):
@@ -692,7 +835,10 @@ def write_markdown(path: Path, command: str, info: dict, rows: list, ratios: lis
             f"| {cell(rec, 'jax_over_numpy_best')} | {cell(rec, 'jax_over_numpy_alloc_median')} "
             f"| {cell(rec, 'normsum_slowdown_median')} "
             f"| {cell(rec, 'library_over_unpacked_median')} "
-            f"| {cell(rec, 'jax_over_roofline_median')} |"
+            f"| {cell(rec, 'jax_over_roofline_median')} "
+            f"| {cell(rec, 'jax_over_mitsuba_median', True)} "
+            f"| {cell(rec, 'jax_over_mitsuba_best')} "
+            f"| {cell(rec, 'separable_over_mitsuba_median')} |"
         )
     lines += [
         "",
@@ -716,8 +862,11 @@ def write_markdown(path: Path, command: str, info: dict, rows: list, ratios: lis
         "unpacked components / with `jnp.linalg.norm(.., keepdims=True)` and `jnp.sum(a * b, -1)`; "
         "`roof-1d` = `x * 2.0` on a flat float32 array of 4.5 N elements (36 bytes per pair moved, "
         "one stream: the bandwidth roofline), `roof-n3` = `wi + wo` on the (N, 3) inputs (the same "
-        "bytes in the kernel's layout; XLA's tiled emitter does not vectorise it across rows). "
-        "One evaluation = one (wi, wo) pair, all 3 channels.",
+        "bytes in the kernel's layout; XLA's tiled emitter does not vectorise it across rows); "
+        "`jax-separable` = the public API's GGX + separable Smith + conductor Fresnel "
+        "microfacet model; `mitsuba-llvm` = Mitsuba 3's `roughconductor` through `BSDF.eval` "
+        "(llvm_ad_rgb, resident opaque inputs, traced and evaluated every call, checked "
+        "against `jax-separable`). One evaluation = one (wi, wo) pair, all 3 channels.",
         "",
     ]
     path.write_text("\n".join(lines))
@@ -731,12 +880,22 @@ def main(argv=None) -> int:
     ap.add_argument("--min-time", type=float, default=0.05,
                     help="minimum duration of one timing sample in seconds")
     ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "results")
+    ap.add_argument("--libllvm", default=None,
+                    help="libLLVM for Mitsuba's llvm variant (default: DRJIT_LIBLLVM_PATH)")
+    ap.add_argument("--no-mitsuba", action="store_true", help="leave the Mitsuba rows out")
     args = ap.parse_args(argv)
+    if args.no_mitsuba:
+        MITSUBA["why"] = "--no-mitsuba"
+    else:
+        load_mitsuba(args.libllvm)
+        if MITSUBA["mi"] is None:
+            print(f"mitsuba-llvm rows left out: {MITSUBA['why']}", file=sys.stderr)
     if jax.config.jax_enable_x64:
         raise SystemExit("run with x64 disabled (JAX_ENABLE_X64 unset): this is a float32 bench")
 
     command = "python " + shlex.join([sys.argv[0], *(sys.argv[1:] if argv is None else argv)])
     info = machine_info()
+    info["mitsuba"] = {k: MITSUBA[k] for k in ("version", "libllvm", "why")}
     busy = info["cpu_busy_before_start"]
     if busy is not None and busy > 0.1:
         print(f"warning: {busy:.0%} of the CPU was busy before the start: another process is "
@@ -793,7 +952,10 @@ def main(argv=None) -> int:
     print("\njax/numpy throughput ratio (median):")
     for r in ratios:
         print(f"  {r['model']:14s} N={r['n']:>8d}  {r['jax_over_numpy_median']:.2f} "
-              f"(best {r['jax_over_numpy_best']:.2f})")
+              f"(best {r['jax_over_numpy_best']:.2f})"
+              + (f"  jax/mitsuba {r['jax_over_mitsuba_median']:.2f} "
+                 f"(best {r['jax_over_mitsuba_best']:.2f})" if "jax_over_mitsuba_median" in r
+                 else ""))
     print(f"wrote {args.out / 'eval.md'} and {args.out / 'eval.json'} ({elapsed:.1f} s)")
     return 0
 
