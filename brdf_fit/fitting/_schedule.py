@@ -244,12 +244,15 @@ class Runner:
         candidates ``cands`` (n', p) and fixed values (unbatched) and a metric of
         :data:`~brdf_fit.fitting.guess.SHARED_METRICS`: the candidates' model values on the
         samples ``sub`` (None: all) once, then, ``chunk`` problems at a time, their losses by
-        matrix products (:func:`~brdf_fit.fitting.guess.shared_losses`) and the pick. The
-        carried quantities at the starts are then :meth:`init`'s."""
+        matrix products (:func:`~brdf_fit.fitting.guess.shared_losses`) and the pick; for
+        batch-lm also the carried quantities at the starts (:func:`~brdf_fit.fitting._lm.quad`,
+        in groups), in the same program, as :meth:`guess` does (one compilation, not two)."""
         key = ("shared", lay, tuple(int(c) for c in chan_of), int(chunk))
         fn = self._guess.get(key)
         if fn is None:
-            problem = self._problem
+            problem, group = self._problem, self.group
+            lm = self.solver == "batch-lm"
+            sandwich = not self._sigma
 
             def starts(i, d, cands, fx, sub):
                 def take(x):  # all samples (the usual case): no gather
@@ -266,8 +269,16 @@ class Runner:
                     L = _guess.shared_losses(problem, values, m, terms)
                     return jax.vmap(lambda ll: _guess.pick(jnp, cands, ll, lay, chan_of))(L)
 
-                u = jax.lax.map(one, i.reshape(-1, chunk))
-                return u.reshape(i.shape[0], -1)
+                u = jax.lax.map(one, i.reshape(-1, chunk)).reshape(i.shape[0], -1)
+                if not lm:
+                    return u, ()
+                dq = directions(problem, gf.shape[-1])
+                fxl = {k: jnp.broadcast_to(v, (i.shape[0], *v.shape)) for k, v in fx.items()}
+
+                def q(t, a):
+                    return lanes(lambda x, y, z: quad(problem, dq, x, y, z, sandwich), 1,
+                                 (t[0], a, t[1]))
+                return u, grouped(q, (u, fxl), group, i, d)
 
             if self.mesh is None:
                 fn = jax.jit(starts)

@@ -437,13 +437,15 @@ def fit_batch(
                                                         else _guess.GUESS_CANDIDATES))
         chan_of = _guess.channel_index(problem, C)
         sub = _guess.subsample(M, _guess.SHARED_SAMPLES if shared else _guess.GUESS_SAMPLES)
-        if shared:  # one set of candidates for all; the carried quantities by run.init below
+        if shared:  # one set of candidates for all problems, the whole batch in one call
             cands = _guess.design(problem, state.u[:1], vary, defaults, n_cand).astype(dtype)
             fn = run.shared_guess(lay, chan_of, block // run.ndev)
-            u = fn(run.put(np.arange(rows, dtype=np.int32)), data, jnp.asarray(cands[0]),
-                   {k: jnp.asarray(v[0]) for k, v in fixed.items()},
-                   None if sub.size == M else jnp.asarray(sub))
+            u, q = fn(run.put(np.arange(rows, dtype=np.int32)), data, jnp.asarray(cands[0]),
+                      {k: jnp.asarray(v[0]) for k, v in fixed.items()},
+                      None if sub.size == M else jnp.asarray(sub))
             state = dataclasses.replace(state, u=np.array(u[:B]))
+            if q:
+                state = state.with_quad(tuple(np.asarray(x)[:B] for x in q))
         else:
             cands = _guess.design(problem, state.u, vary, defaults, n_cand).astype(dtype)
             u, q = blocked(run, run.guess(lay, chan_of), every, block,
