@@ -574,6 +574,16 @@ def _write_batch_table(rows, path: str) -> None:
         w.writerows(flat)
 
 
+def _geometry(ds):
+    """``(wi, wo)`` of data sets ``ds`` for fit_batch: one (M, 3) pair when every file has
+    exactly the first one's directions (a gonioreflectometer's texels), which fit_batch keeps
+    once and for which it uses its finer shared-geometry guess; else stacked (B, M, 3)."""
+    wi0, wo0 = ds[0].wi, ds[0].wo
+    if all(np.array_equal(d.wi, wi0) and np.array_equal(d.wo, wo0) for d in ds[1:]):
+        return wi0, wo0
+    return np.stack([d.wi for d in ds]), np.stack([d.wo for d in ds])
+
+
 def _fit_batch_streamed(args, entry, fix, init) -> int:
     """``fit-batch --out-dir DIR``: the files are read block by block (``--block-size``
     files at a time, default from a 512 MB budget) and fitted by
@@ -616,8 +626,8 @@ def _fit_batch_streamed(args, entry, fix, init) -> int:
                                f"every file like {paths[0]} ({shape[0]} samples, channels "
                                f"{','.join(shape[1])}{', sigma' if shape[2] else ''})")
             blk.append(d)
-        return {"wi": np.stack([d.wi for d in blk]), "wo": np.stack([d.wo for d in blk]),
-                "values": np.stack([d.value for d in blk]),
+        wi, wo = _geometry(blk)
+        return {"wi": wi, "wo": wo, "values": np.stack([d.value for d in blk]),
                 "weight": np.stack([d.weight for d in blk]),
                 "sigma": np.stack([d.sigma for d in blk]) if shape[2] else None}
 
@@ -686,7 +696,7 @@ def cmd_fit_batch(args) -> int:
         progress = _BatchProgress(label, enabled=not args.quiet)
         try:
             res = fit_batch(
-                np.stack([d.wi for _, d in items]), np.stack([d.wo for _, d in items]),
+                *_geometry([d for _, d in items]),
                 np.stack([d.value for _, d in items]), entry.name,
                 weight=np.stack([d.weight for _, d in items]),
                 sigma=np.stack([d.sigma for _, d in items]) if has_sigma else None,

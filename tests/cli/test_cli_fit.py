@@ -279,6 +279,22 @@ def test_fit_batch_command(csv_data, tmp_path, capsys):
     assert "skipped:" in out and "bad.csv" in out and "yes" in out
 
 
+def test_fit_batch_passes_one_geometry_when_every_file_has_it(csv_data, tmp_path):
+    """Files with exactly the same directions (a gonioreflectometer's texels) go to fit_batch
+    as one (M, 3) geometry (kept once, the shared-geometry guess); any difference, per-file."""
+    import dataclasses
+
+    from brdf_fit.cli import _geometry, read_data
+
+    d = read_data(str(csv_data))
+    wi, wo = _geometry([d, d, d])
+    assert wi.shape == wo.shape == (d.n, 3)
+    moved = dataclasses.replace(d, wi=d.wi[::-1].copy())
+    wi, wo = _geometry([d, moved])
+    assert wi.shape == wo.shape == (2, d.n, 3)
+    np.testing.assert_array_equal(wi[1], d.wi[::-1])
+
+
 def test_fit_batch_streamed_out_dir_and_resume(csv_data, tmp_path, capsys):
     """fit-batch --out-dir streams the files in blocks (--block-size) to a folder; a second run
     is refused without --resume and with it fits nothing; the results equal the ordinary
