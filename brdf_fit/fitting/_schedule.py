@@ -220,7 +220,7 @@ class Runner:
             sandwich = not self._sigma
 
             def best(c, a, fx):
-                L = _guess.candidate_losses(problem, c, a, fx, lay, chan_of)
+                L = _guess.candidate_losses(problem, c, a, fx, lay)
                 return _guess.pick(jnp, c, L, lay, chan_of)
 
             def one(t, a):

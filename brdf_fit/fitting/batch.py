@@ -433,8 +433,8 @@ def fit_batch(
 
     if vary:  # coarse design over the parameters without a start value (fitting.guess)
         ts = time.perf_counter()
-        lay = _guess.layout(problem, vary, n_cand := (_guess.SHARED_CANDIDATES if shared
-                                                        else _guess.GUESS_CANDIDATES))
+        n_cand = _guess.SHARED_CANDIDATES if shared else _guess.GUESS_CANDIDATES
+        lay = _guess.layout(problem, vary, n_cand)
         chan_of = _guess.channel_index(problem, C)
         sub = _guess.subsample(M, _guess.SHARED_SAMPLES if shared else _guess.GUESS_SAMPLES)
         if shared:  # one set of candidates for all problems, the whole batch in one call
@@ -443,17 +443,15 @@ def fit_batch(
             u, q = fn(run.put(np.arange(rows, dtype=np.int32)), data, jnp.asarray(cands[0]),
                       {k: jnp.asarray(v[0]) for k, v in fixed.items()},
                       None if sub.size == M else jnp.asarray(sub))
-            state = dataclasses.replace(state, u=np.array(u[:B]))
-            if q:
-                state = state.with_quad(tuple(np.asarray(x)[:B] for x in q))
         else:
             cands = _guess.design(problem, state.u, vary, defaults, n_cand).astype(dtype)
             u, q = blocked(run, run.guess(lay, chan_of), every, block,
                            lambda pad, n: (cands[pad], {k: v[pad] for k, v in fixed.items()}),
                            (run.subsample(data, sub), data))
-            state = dataclasses.replace(state, u=u)
-            if q:
-                state = state.with_quad(q)
+        # the shared call returns every padded row, blocked() the B real ones
+        state = dataclasses.replace(state, u=np.array(u[:B]))
+        if q:
+            state = state.with_quad(tuple(np.asarray(x)[:B] for x in q))
         record(guess=True, candidates=int(cands.shape[1]), samples=int(sub.size), lane_steps=0,
                shared=shared, seconds=round(time.perf_counter() - ts, 4))
     if solver == "batch-lm" and state.A is None:  # the carried quantities at the start

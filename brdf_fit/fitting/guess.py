@@ -250,7 +250,7 @@ def losses_of_values(problem, m, prep):
                                              axis=0))(m)
 
 
-def shared_terms(gf, scale, xp=jnp):
+def shared_terms(gf, scale):
     """The per-problem data of :func:`shared_losses`, channel-major: ``(g, s2, const)`` from
     the prepared ``g(f)`` and ``scale`` (B, M, C) (``scale`` None: unit weights): ``g =
     s^2 g(f)`` and ``s2 = s^2`` as (C, B, M) (``s2`` None without weights), ``const = sum_m
@@ -259,11 +259,11 @@ def shared_terms(gf, scale, xp=jnp):
     samples x 91 candidates, float64, 2 cores: 0.046 s against 0.111 s in the (B, M, C)
     layout)."""
     if scale is None:
-        return xp.transpose(gf, (2, 0, 1)), None, xp.sum(gf * gf, axis=1).T
-    s2 = xp.broadcast_to(scale * scale, gf.shape)
+        return jnp.transpose(gf, (2, 0, 1)), None, jnp.sum(gf * gf, axis=1).T
+    s2 = jnp.broadcast_to(scale * scale, gf.shape)
     s2g = s2 * gf
-    return (xp.transpose(s2g, (2, 0, 1)), xp.transpose(s2, (2, 0, 1)),
-            xp.sum(s2g * gf, axis=1).T)
+    return (jnp.transpose(s2g, (2, 0, 1)), jnp.transpose(s2, (2, 0, 1)),
+            jnp.sum(s2g * gf, axis=1).T)
 
 
 def shared_losses(problem, m, mul, terms):
@@ -293,12 +293,12 @@ def shared_losses(problem, m, mul, terms):
     return jnp.transpose(0.5 * (sq - 2.0 * cross + const[..., None]), (1, 2, 0))
 
 
-def candidate_losses(problem, cands, prep, fixed, lay, chan_of):
+def candidate_losses(problem, cands, prep, fixed, lay):
     """Per-channel losses ``(n', C)`` of the candidate vectors ``cands`` (n', p) on prepared
     data ``prep``: :func:`losses_of_values` of :func:`candidate_values`. When every problem of
     a batch has the same directions, candidates and fixed values, fit_batch computes the model
-    values once for the batch and only the losses per problem (``shared`` in
-    :meth:`brdf_fit.fitting._schedule.Runner.guess`)."""
+    values once for the batch and only the losses per problem
+    (:meth:`brdf_fit.fitting._schedule.Runner.shared_guess`)."""
     C = prep[3].shape[-1]
     m = candidate_values(problem, cands, prep[:2], fixed, lay, C)
     return losses_of_values(problem, m, prep)
@@ -307,7 +307,7 @@ def candidate_losses(problem, cands, prep, fixed, lay, chan_of):
 def _pseudo_channel_values(problem, cands, geom, fixed, lay, C):
     ns, nl = lay
     c3 = cands.reshape(ns, nl, -1)
-    chan = np.asarray(problem.layout.channel_index(C)) >= 0
+    chan = channel_index(problem, C) >= 0
     wi, wo = geom
     source = problem.source
     fixed_t = {k: (jnp.tile(v, nl) if source.param(k).channels and v.shape == (C,) else v)

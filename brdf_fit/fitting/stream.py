@@ -394,10 +394,7 @@ def fit_stream(values, model, out=None, *, wi=None, wo=None, weight=None, sigma=
                            "from the source)")
         return n, arrays
 
-    # the next block is read (the source called, its arrays converted and padded) on a worker
-    # thread while this one is fitted: one call at a time, in block order
-    pool = (concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="fit_stream-read")
-            if prefetch and n_blocks - len(done_blocks) > 1 else None)
+    pool = None
     bar = ProgressBar() if progress is True else (progress or None)
     res = StreamResult(model_name=src.name, n_problems=N, block_size=bs, n_blocks=n_blocks,
                        fitted=[], skipped=sorted(done_blocks), seconds=0.0,
@@ -409,6 +406,10 @@ def fit_stream(values, model, out=None, *, wi=None, wo=None, weight=None, sigma=
         if bar is not None:
             bar(finished, N, "start")
         todo = [k for k in range(n_blocks) if k not in done_blocks]
+        # the next block is read (the source called, its arrays converted and padded) on a
+        # worker thread while this one is fitted: one call at a time, in block order
+        if prefetch and len(todo) > 1:
+            pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="fit_stream-read")
         pending = pool.submit(load, todo[0]) if pool is not None and todo else None
         for i, k in enumerate(todo):
             if pending is not None:  # read while the previous block was fitted

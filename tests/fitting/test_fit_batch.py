@@ -380,7 +380,6 @@ def test_guess_pseudo_channels_equal_candidate_by_candidate(name):
     prob, u = _problem_at(entry, rng)
     lay = G.layout(prob, prob.free)
     assert lay is not None
-    chan_of = G.channel_index(prob, 3)
     cands = G.design(prob, u, prob.free, entry.defaults())
     n = 16
     wi, wo = directions(rng, n), directions(rng, n)
@@ -391,8 +390,8 @@ def test_guess_pseudo_channels_equal_candidate_by_candidate(name):
         (wi, wo, f, np.ones_like(f), None, RELATIVE_FLOOR * f.max())))
     # jitted, both in one program (see _check_structured)
     got, want = (np.asarray(x) for x in jax.jit(lambda c: (
-        G.candidate_losses(prob, c, prep, {}, lay, chan_of),
-        G.candidate_losses(prob, c, prep, {}, None, chan_of)))(jnp.asarray(cands)))
+        G.candidate_losses(prob, c, prep, {}, lay),
+        G.candidate_losses(prob, c, prep, {}, None)))(jnp.asarray(cands)))
     np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-300)
 
 
@@ -425,7 +424,7 @@ def test_shared_guess_losses_equal_problem_by_problem(metric, weights, cos_weigh
     got = np.asarray(G.shared_losses(prob, vals, prep[2][0], G.shared_terms(prep[3], prep[4])))
     for b in range(B):
         pb = tuple(None if x is None else (x[0] if x.shape[0] == 1 else x[b]) for x in prep)
-        want = np.asarray(G.candidate_losses(prob, cands, pb, {}, lay, None))
+        want = np.asarray(G.candidate_losses(prob, cands, pb, {}, lay))
         # the expanded terms are T = 0.5 sum s^2 (H^2 + g(f)^2): m eps T of rounding, at most
         H = np.asarray(METRIC_H[metric](vals * pb[2]))
         s2 = 1.0 if pb[4] is None else np.asarray(pb[4]) ** 2
