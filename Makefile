@@ -19,7 +19,7 @@ demo: $(STAMP)          ## the main job on its embedded default
 	$(BIN)/brdf-fit demo
 
 # the suite runs in parallel, one process per core (pytest-xdist; whole files per worker, so a
-# file's tests share their compilations): 8:12-10:45 for ~1890 tests on 2 idle cores, nine fresh clones
+# file's tests share their compilations): 8:12-10:45 for ~1890 tests on 2 idle cores, ten fresh clones
 XDIST  := -n auto --maxprocesses=4 --dist loadfile
 
 test: $(STAMP)          ## the default test suite (what CI runs)
