@@ -145,6 +145,14 @@ class AbstractDistribution(eqx.Module):
         """Whether the distribution is given two widths (views at several azimuths needed)."""
         return False
 
+    def D_half_sum(self, hx, hy, hz, l2):
+        """``D(h/|h|)`` from the unnormalised half vector ``h = wi + wo`` and ``l2 = |h|^2 > 0``:
+        what :class:`~brdf_fit.models.MicrofacetBRDF`'s float32 evaluation calls (issue 15).
+        This default normalises ``h`` (a square root and a division per lane); a distribution
+        whose ``D`` is written in ratios homogeneous in ``m`` overrides it without them."""
+        inv = 1.0 / jnp.sqrt(l2)
+        return self.D(hx * inv, hy * inv, hz * inv)
+
     def P_exact(self, wx, wy, wz):
         """``P`` with the exact Lambda (what the visible-normal sampler draws from)."""
         return self.P(wx, wy, wz)
@@ -209,6 +217,19 @@ class GGX(AbstractDistribution):
         iax, iay = 1.0 / ax, 1.0 / ay
         s = (mx * iax) ** 2 + (my * iay) ** 2 + mz * mz
         return jnp.where(mz > 0, 1.0 / (PI * ax * ay * s * s), 0.0)
+
+    def D_half_sum(self, hx, hy, hz, l2):
+        """``D(h/|h|)`` without normalising ``h``: with ``q = (hx/ax)^2 + (hy/ay)^2 + hz^2`` (the
+        ``s`` of :meth:`D` times ``|h|^2``), ``D = (l2/q)^2/(pi ax ay)``. The ratio ``l2/q`` of
+        numbers of one magnitude (``min(1, 1/a^2) <= q/l2 <= 1/a^2``) is formed before squaring,
+        so neither ``l2^2`` nor ``q^2`` can underflow float32 at the grazing near-mirror pairs
+        where ``l2`` is ~1e-20. One division per lane instead of a reciprocal square root and
+        a division."""
+        ax, ay = self.widths()
+        iax, iay = 1.0 / ax, 1.0 / ay
+        q = (hx * iax) ** 2 + (hy * iay) ** 2 + hz * hz
+        r = l2 / jnp.where(hz > 0, q, 1.0)
+        return jnp.where(hz > 0, r * r * (1.0 / (PI * ax * ay)), 0.0)
 
     def P(self, wx, wy, wz):
         ax, ay = self.widths()
@@ -448,6 +469,15 @@ class AbstractMasking(eqx.Module):
     def G2(self, dist, ix, iy, iz, ox, oy, oz, hz, d):
         return 4.0 * iz * oz * self.V(dist, ix, iy, iz, ox, oy, oz, hz, d)
 
+    def V_parts(self, dist, ix, iy, iz, ox, oy, oz, hz, d):
+        """``(num, den)`` with ``V = num/den`` for the float32 evaluation of
+        :class:`~brdf_fit.models.MicrofacetBRDF` (issue 15), which divides ``D num`` by ``den``
+        once: a per-pair value that ends in a division is one loop fusion for XLA, whereas
+        ``D * V`` is split at the product (XLA fuses the cheap product into the per-channel
+        output and leaves each division behind as a kernel of its own). Unguarded: the inputs
+        are unit directions above the horizon. This default is ``(V, 1)``."""
+        return self.V(dist, ix, iy, iz, ox, oy, oz, hz, d), 1.0
+
 
 class SmithSeparable(AbstractMasking):
     """Uncorrelated Smith ``G2 = G1(wi) G1(wo)`` (Smith 1967; Walter et al. 2007, eq. 23)."""
@@ -455,12 +485,18 @@ class SmithSeparable(AbstractMasking):
     def V(self, dist, ix, iy, iz, ox, oy, oz, hz, d):
         return 1.0 / ((iz + dist.P(ix, iy, iz)) * (oz + dist.P(ox, oy, oz)))
 
+    def V_parts(self, dist, ix, iy, iz, ox, oy, oz, hz, d):
+        return 1.0, (iz + dist.P(ix, iy, iz)) * (oz + dist.P(ox, oy, oz))
+
 
 class SmithHeightCorrelated(AbstractMasking):
     """Height-correlated Smith ``G2 = 1/(1 + Lambda(wi) + Lambda(wo))`` (Heitz 2014, eq. 99)."""
 
     def V(self, dist, ix, iy, iz, ox, oy, oz, hz, d):
         return 0.5 / (oz * dist.P(ix, iy, iz) + iz * dist.P(ox, oy, oz))
+
+    def V_parts(self, dist, ix, iy, iz, ox, oy, oz, hz, d):
+        return 0.5, oz * dist.P(ix, iy, iz) + iz * dist.P(ox, oy, oz)
 
 
 class SchlickSmithKaris(AbstractMasking):
@@ -479,6 +515,10 @@ class SchlickSmithKaris(AbstractMasking):
     def V(self, dist, ix, iy, iz, ox, oy, oz, hz, d):
         k = 0.5 * dist.widths()[0]
         return 0.25 / ((iz * (1.0 - k) + k) * (oz * (1.0 - k) + k))
+
+    def V_parts(self, dist, ix, iy, iz, ox, oy, oz, hz, d):
+        k = 0.5 * dist.widths()[0]
+        return 0.25, (iz * (1.0 - k) + k) * (oz * (1.0 - k) + k)
 
 
 class VCavity(AbstractMasking):

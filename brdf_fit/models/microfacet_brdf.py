@@ -20,6 +20,7 @@ Reflection pdfs, with the half-vector Jacobian ``1/(4 wo.h)`` (Walter et al. 200
 from __future__ import annotations
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 
 from brdf_fit.core.frame import join, split
@@ -33,11 +34,29 @@ from brdf_fit.core.microfacet import (
     reflect_about,
     vcavity_sample_visible,
 )
-from brdf_fit.core.numerics import safe_div
+from brdf_fit.core.numerics import NORM_EPS, safe_div
 from brdf_fit.models._base import AbstractBRDF, expand_channels
 from brdf_fit.models._lobes import finish_sample, half_geometry, sanitize
 
 _SAMPLING = ("auto", "visible", "ndf")
+
+
+def _has_float64(*trees) -> bool:
+    """Whether any floating array among the leaves is float64 (Python scalars are weakly typed
+    and follow the arrays)."""
+    return any(
+        getattr(x, "dtype", None) == jnp.float64 for x in jax.tree.leaves(trees)
+    )
+
+
+@jax.custom_jvp
+def _eval_fast_value(model, wi, wo):
+    return model.eval_fast(wi, wo)
+
+
+@_eval_fast_value.defjvp
+def _eval_fast_value_jvp(primals, tangents):
+    return jax.jvp(lambda m, a, b: m.eval_guarded(a, b), primals, tangents)
 
 
 class MicrofacetBRDF(AbstractBRDF):
@@ -67,6 +86,46 @@ class MicrofacetBRDF(AbstractBRDF):
         return "visible" if self.distribution.supports_visible else "ndf"
 
     def eval(self, wi, wo):
+        """``f(wi, wo)``. In float64 the guarded form (:meth:`eval_guarded`); in float32 and
+        narrower the value is :meth:`eval_fast` and the derivatives, in every dtype, are those
+        of :meth:`eval_guarded` (custom JVP), as for :func:`~brdf_fit.core.fresnel.conductor`:
+        the guarded form's gradients stay finite at the hard cases of issue 16, and float64
+        values (through which the stored defaults were fitted) are unchanged bit for bit."""
+        if _has_float64(self, wi, wo):
+            return self.eval_guarded(wi, wo)
+        return _eval_fast_value(self, wi, wo)
+
+    def eval_fast(self, wi, wo):
+        """``f(wi, wo)`` written for evaluation throughput (issue 15), for unit directions.
+
+        One pass over the inputs with nothing sanitised: ``h = wi + wo`` stays unnormalised
+        (``D`` from :meth:`~brdf_fit.core.microfacet.AbstractDistribution.D_half_sum`),
+        ``wo.h = |wi + wo|/2`` (equal for unit directions, and >= 0 by construction, where the
+        dot product of directions unit only to rounding cancels to a negative value at grazing
+        near-mirror pairs: :func:`~brdf_fit.models._lobes.half_geometry` clamps that at 0),
+        and invalid lanes (a direction at or below the horizon, ``|wi + wo|^2 <= NORM_EPS``)
+        are selected away at the end; whatever they computed is discarded, so this form is
+        never differentiated (:meth:`eval` takes its derivatives from :meth:`eval_guarded`).
+        On the GGX-conductor benchmark XLA compiles it to 3 loop fusions instead of 4, with
+        a reciprocal square root per pair fewer."""
+        ix, iy, iz = split(wi)
+        ox, oy, oz = split(wo)
+        hx, hy, hz = ix + ox, iy + oy, iz + oz
+        l2 = hx * hx + hy * hy + hz * hz
+        valid = (iz > 0) & (oz > 0) & (l2 > NORM_EPS)
+        d = 0.5 * jnp.sqrt(l2)
+        dist = self.distribution
+        # n.h = hz/|h| only where a masking term reads it (V-cavity); dead code otherwise
+        num, den = self.masking.V_parts(dist, ix, iy, iz, ox, oy, oz, hz / (2.0 * d), d)
+        DV = dist.D_half_sum(hx, hy, hz, l2) * num / den
+        ch = self.channels()
+        F = self.fresnel(expand_channels(d, ch))
+        return jnp.where(expand_channels(valid, ch), F * expand_channels(DV, ch), 0.0)
+
+    def eval_guarded(self, wi, wo):
+        """``f(wi, wo)`` with every lane sanitised before a formula sees it
+        (:func:`~brdf_fit.models._lobes.half_geometry`): finite values and gradients at the hard
+        cases (grazing, ``wi = -wo``, alpha at its floor) in every dtype."""
         valid, (ix, iy, iz), (ox, oy, oz), (hx, hy, hz), d = half_geometry(wi, wo)
         dist = self.distribution
         DV = dist.D(hx, hy, hz) * self.masking.V(dist, ix, iy, iz, ox, oy, oz, hz, d)
