@@ -806,7 +806,7 @@ def write_markdown(path: Path, command: str, info: dict, rows: list, ratios: lis
         "",
         "Throughput ratio jax/numpy = t_numpy / t_jax (> 1: the jitted brdf_fit model is faster); "
         "normsum slowdown = t_jax-normsum / t_jax-unpacked; library/unpacked = t_jax / "
-        "t_jax-unpacked (> 1: the library's guarded kernel is slower than the hand-written one); "
+        "t_jax-unpacked (> 1: the library's kernel is slower than the hand-written one); "
         "jax/roofline = t_roof-1d / t_jax (fraction of the memory-bandwidth bound reached: "
         "`roof-1d` moves the kernel's 36 bytes per pair, see the implementations below); "
         "jax/mitsuba = t_mitsuba-llvm / t_jax (> 1: brdf_fit faster than Mitsuba 3's LLVM "
