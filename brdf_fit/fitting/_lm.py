@@ -165,13 +165,19 @@ def tangents(problem, dirs, x, prep, fixed, physical=False):
         params = {**prob.fixed, **pp} if physical else prob.physical(pp)
         return prob.residuals_prepared(params, prep)
 
-    r = res(parts)
-    T = []
+    r, T = None, []
     for name, j in dirs:
         v = parts[name]
         t = (jnp.ones_like(v) if j is None
              else jnp.zeros(v.size, v.dtype).at[j].set(1.0).reshape(v.shape))
-        T.append(jax.jvp(lambda z, name=name: res({**parts, name: z}), (v,), (t,))[1])
+        rj, tj = jax.jvp(lambda z, name=name: res({**parts, name: z}), (v,), (t,))
+        # r from a JVP's primal: the model's value where its derivatives come from (a model
+        # with a separate value form, as MicrofacetBRDF in float32, would otherwise be
+        # evaluated twice per step, once in each form)
+        r = rj if r is None else r
+        T.append(tj)
+    if r is None:
+        r = res(parts)
     T = jnp.stack(T) if T else jnp.zeros((0, *r.shape), r.dtype)
     return r, T
 
