@@ -301,6 +301,22 @@ class Beckmann(AbstractDistribution):
         es = jnp.where(ok, e, 0.0)
         return jnp.where(ok, jnp.exp(es) / (PI * ax * ay), 0.0)
 
+    def D_half_sum(self, hx, hy, hz, l2):
+        """``D(h/|h|)`` without normalising ``h``: the slope term ``t = ((hx/ax)^2 +
+        (hy/ay)^2)/hz^2`` is homogeneous of degree 0, and ``1/(n.m)^4 = q^2`` with
+        ``q = l2/hz^2``, so ``D = exp(-t) q^2/(pi ax ay)``: one division, no square root and no
+        logarithm. ``q^2`` overflows float32 only where ``q > 1.8e19``; there ``t >= q - 1``
+        (alpha <= 1) and ``exp(-t)`` is 0, so lanes where ``exp(-t)`` underflows are 0. (:meth:`D`
+        forms ``exp(-t - 4 log(n.m))``, which underflows later: in float32 this form reads 0 for
+        values below ~1e-30, where ``exp(-t)`` flushes before ``q^2`` scales it back up.)"""
+        ax, ay = self.widths()
+        pos = hz > 0
+        r = 1.0 / jnp.where(pos, hz * hz, 1.0)
+        t = ((hx / ax) ** 2 + (hy / ay) ** 2) * r
+        e = jnp.exp(-t)
+        q = l2 * r
+        return jnp.where(pos & (e > 0), e * q * q * (1.0 / (PI * ax * ay)), 0.0)
+
     def _B_a(self, wx, wy, wz):
         ax, ay = self.widths()
         B = (ax * wx) ** 2 + (ay * wy) ** 2
@@ -541,6 +557,11 @@ class VCavity(AbstractMasking):
         # d = wo.h <= 0 (directions unit only to rounding, see half_geometry): the limit
         # wo.h -> 0+ of the groove terms is +inf, so G = 1; safe_div's 0 there would make G = 0
         return jnp.where(d > 0, jnp.minimum(a, jnp.minimum(b, c)), a)
+
+    def V_parts(self, dist, ix, iy, iz, ox, oy, oz, hz, d):
+        # min(1, 2 hz oz/d, 2 hz iz/d)/(4 iz oz) over the common denominator 4 iz oz d (d > 0:
+        # the float32 form's d = |wi + wo|/2 is positive on every valid lane)
+        return jnp.minimum(d, 2.0 * hz * jnp.minimum(iz, oz)), 4.0 * iz * oz * d
 
 
 def vcavity_pdf_visible(dist, wx, wy, wz, mx, my, mz):
