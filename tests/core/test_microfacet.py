@@ -278,8 +278,8 @@ def test_D_half_sum_equals_D_of_the_normalised_half_vector(name, ax, ay):
         # ~700 before exp underflows)
         np.testing.assert_allclose(got, ref, rtol=1e-12, atol=0)
     # float32 at |h| = 1e-10 (l2 = 1e-20): GGX forms the ratio l2/q first and Beckmann the
-    # ratio l2/hz^2, so neither underflows to a wrong value (Beckmann's exp(-t) carries t eps relative error,
-    # t up to ~87 before it underflows: 1e-5)
+    # ratio l2/hz^2, so neither underflows to a wrong value (Beckmann's exp(-t) carries t eps
+    # relative error, t up to ~87 before it underflows: 1e-5)
     if name in ("ggx", "beckmann"):
         d32 = make_dist(name, np.float32(ax), np.float32(ay))
         h = (m * 1e-10).astype(np.float32)
