@@ -19,7 +19,8 @@ demo: $(STAMP)          ## the main job on its embedded default
 	$(BIN)/brdf-fit demo
 
 # the suite runs in parallel, one process per core (pytest-xdist; whole files per worker, so a
-# file's tests share their compilations): 8:12-10:45 for ~1890 tests on 2 idle cores, ten fresh clones
+# file's tests share their compilations): 9:15 for 1951 tests on 2 idle cores from a fresh clone
+# (8:12-10:45 for ~1890 tests in ten earlier fresh clones)
 XDIST  := -n auto --maxprocesses=4 --dist loadfile
 
 test: $(STAMP)          ## the default test suite (what CI runs)
