@@ -221,10 +221,10 @@ class GGX(AbstractDistribution):
     def D_half_sum(self, hx, hy, hz, l2):
         """``D(h/|h|)`` without normalising ``h``: with ``q = (hx/ax)^2 + (hy/ay)^2 + hz^2`` (the
         ``s`` of :meth:`D` times ``|h|^2``), ``D = (l2/q)^2/(pi ax ay)``. The ratio ``l2/q`` of
-        numbers of one magnitude (``min(1, 1/a^2) <= q/l2 <= 1/a^2``) is formed before squaring,
-        so neither ``l2^2`` nor ``q^2`` can underflow float32 at the grazing near-mirror pairs
-        where ``l2`` is ~1e-20. One division per lane instead of a reciprocal square root and
-        a division."""
+        numbers of one magnitude (``1 <= q/l2 <= 1/min(ax, ay)^2``, widths <= 1) is formed before
+        squaring, so neither ``l2^2`` nor ``q^2`` can underflow float32 at the grazing
+        near-mirror pairs where ``l2`` is ~1e-20. One division per lane instead of a reciprocal
+        square root and a division."""
         ax, ay = self.widths()
         iax, iay = 1.0 / ax, 1.0 / ay
         q = (hx * iax) ** 2 + (hy * iay) ** 2 + hz * hz

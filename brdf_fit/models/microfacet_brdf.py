@@ -106,8 +106,10 @@ class MicrofacetBRDF(AbstractBRDF):
         and invalid lanes (a direction at or below the horizon, ``|wi + wo|^2 <= NORM_EPS``)
         are selected away at the end; whatever they computed is discarded, so this form is
         never differentiated (:meth:`eval` takes its derivatives from :meth:`eval_guarded`).
-        On the GGX-conductor benchmark XLA compiles it to 3 loop fusions instead of 4, with
-        a reciprocal square root per pair fewer."""
+        On the GGX-conductor benchmark XLA compiles it to 3 loop fusions instead of 4 (the
+        per-pair ``D V`` is one of them: see
+        :meth:`~brdf_fit.core.microfacet.AbstractMasking.V_parts`), so the inputs are read once
+        less: 1.35-1.45x faster than :meth:`eval_guarded` at 10^6 pairs (two runs)."""
         ix, iy, iz = split(wi)
         ox, oy, oz = split(wo)
         hx, hy, hz = ix + ox, iy + oy, iz + oz
