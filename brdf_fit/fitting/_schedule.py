@@ -157,13 +157,14 @@ class Runner:
         self._fin = self._compile(fin, 5)
         self._init = self._compile(init, 4)
 
-    def _compile(self, fn, n_args):
+    def _compile(self, fn, n_args, lanes_split=True):
         """jit ``fn(idx, data, *lanes)``; on a mesh under shard_map with ``data`` replicated
-        and every other argument split along the batch."""
+        and every other argument split along the batch (``lanes_split=False``: only ``idx``
+        split, the arguments after ``data`` replicated too)."""
         if self.mesh is None:
             return jax.jit(fn)
         spec = P("batch")
-        specs = (spec, P(), *[spec] * (n_args - 2))
+        specs = (spec, P(), *[spec if lanes_split else P()] * (n_args - 2))
         return jax.jit(jax.shard_map(fn, mesh=self.mesh, in_specs=specs, out_specs=spec,
                                      check_vma=False))
 
@@ -280,13 +281,7 @@ class Runner:
                                  (t[0], a, t[1]))
                 return u, grouped(q, (u, fxl), group, i, d)
 
-            if self.mesh is None:
-                fn = jax.jit(starts)
-            else:
-                fn = jax.jit(jax.shard_map(starts, mesh=self.mesh,
-                                           in_specs=(P("batch"), P(), P(), P(), P()),
-                                           out_specs=P("batch"), check_vma=False))
-            self._guess[key] = fn
+            fn = self._guess[key] = self._compile(starts, 5, lanes_split=False)
         return fn
 
 
