@@ -157,6 +157,12 @@ SHARDED = textwrap.dedent("""
         r = fit_batch(d["wi"], d["wo"], d["v"], "ggx", chunk_steps=8, shard=shard)
         out[str(shard)] = {"alpha": r.params["alpha"].tolist(), "f0": r.params["f0"].tolist(),
                            "converged": r.converged.tolist(), "n_devices": r.n_devices}
+    # one geometry for all problems (the shared guess, its program split over the devices)
+    for shard in (True, False):
+        r = fit_batch(d["wi"][0], d["wo"][0], d["v"], "ggx", chunk_steps=8, shard=shard)
+        out[f"shared {shard}"] = {
+            "alpha": r.params["alpha"].tolist(), "f0": r.params["f0"].tolist(),
+            "guess": [x.get("shared") for x in r.rounds if x.get("guess")]}
     out["devices"] = len(jax.devices())
     print(json.dumps(out))
 """)
@@ -164,7 +170,8 @@ SHARDED = textwrap.dedent("""
 
 def test_sharded_on_two_host_devices(tmp_path):
     """A fresh process (XLA_FLAGS must be set before jax is imported) with 2 host devices: the
-    batch (5 problems, padded to 6) is laid over both and matches the unsharded results."""
+    batch (5 problems, padded to 6) is laid over both and matches the unsharded results, with
+    per-problem directions and with one geometry for all (the shared guess)."""
     truths = TRUTHS + [(0.3, [0.5, 0.5, 0.5])]
     wi, wo, v = batch(truths, noise=0.01, seed=6)
     np.savez(tmp_path / "d.npz", wi=wi, wo=wo, v=v)
@@ -183,6 +190,10 @@ def test_sharded_on_two_host_devices(tmp_path):
     np.testing.assert_allclose(sh["f0"], un["f0"], rtol=0, atol=1e-8)
     r = fit_batch(wi, wo, v, "ggx", chunk_steps=8)  # and this process (1 device) agrees
     np.testing.assert_allclose(sh["f0"], r.params["f0"], rtol=0, atol=1e-8)
+    sh, un = out["shared True"], out["shared False"]
+    assert sh["guess"] == un["guess"] == [True]
+    np.testing.assert_allclose(sh["alpha"], un["alpha"], rtol=0, atol=1e-8)
+    np.testing.assert_allclose(sh["f0"], un["f0"], rtol=0, atol=1e-8)
 
 
 def test_grid_guess_starts_no_worse_and_reaches_the_same_optimum():
