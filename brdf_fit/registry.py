@@ -47,6 +47,7 @@ from brdf_fit.models import (
     lafortune,
     lewis,
     minnaert,
+    mitsuba,
     neumann,
     oren_nayar,
     phong,
@@ -453,3 +454,10 @@ FAMILY_MODULES = (
 for _module in FAMILY_MODULES:
     for _entry in _module.registry_entries():
         register(_entry)
+
+#: renderer-native entries (``Entry.target``, tag ``"native"``): transcriptions of what a
+#: renderer or format itself computes, so that a fit in one exports to it with no loss
+NATIVE_MODULES = (mitsuba,)
+
+for _entry in mitsuba.registry_entries(_gold_eta, _gold_k):
+    register(_entry)

@@ -159,6 +159,12 @@ class Entry:
     catalogue: str | None = None
     #: how ``sample`` draws directions, in a few words ("exact half-vector", "cosine fallback")
     sampler: str = ""
+    #: the renderer or format whose own model this entry transcribes ("mitsuba", "gltf"; None:
+    #: a model of the literature): a fit in it exports to that target with no loss
+    target: str | None = None
+    #: for a native entry: ``params -> the target's description`` (a Mitsuba scene dict, a glTF
+    #: material), parameter for parameter, so that the export is the fitted model itself
+    native_export: Callable[[dict], Any] | None = None
 
     @property
     def param_names(self) -> tuple[str, ...]:
@@ -209,4 +215,5 @@ class Entry:
                 for p in self.params
             ],
             "expected_failures": dict(self.expected_failures),
+            "target": self.target,
         }
