@@ -199,6 +199,13 @@ def _format_of(path: pathlib.Path, fmt: str | None) -> str:
     return f
 
 
+def _umask() -> int:
+    """The process's umask (read by setting it and restoring it at once)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 @contextlib.contextmanager
 def _atomic(path: pathlib.Path):
     """Yield a temporary path next to ``path``; rename it onto ``path`` on success."""
@@ -206,6 +213,9 @@ def _atomic(path: pathlib.Path):
     os.close(fd)
     try:
         yield tmp
+        # mkstemp creates the file -rw------- (issue 28: tables were written that way); a
+        # table is an output like any other, so it gets the user's umask, as open() would
+        os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):

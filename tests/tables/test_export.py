@@ -270,3 +270,23 @@ def test_missing_optional_package(tmp_path, monkeypatch):
     with pytest.raises(ImportError, match="pypng"):
         write_table(dfg_table(), tmp_path / "t.png")
     assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("mask", [0o022, 0o077, 0o002])
+def test_tables_are_written_with_the_users_umask(tmp_path, mask):
+    """Issue 28: tables were written -rw------- (mkstemp's mode) whatever the umask; an output
+    gets 0o666 & ~umask like a file made by open()."""
+    import os
+    import stat
+
+    old = os.umask(mask)
+    try:
+        path = tmp_path / "t.npz"
+        write_table(dfg_table(), path)
+        ref = tmp_path / "plain.txt"
+        ref.write_text("x")
+    finally:
+        os.umask(old)
+    expected = 0o666 & ~mask
+    assert stat.S_IMODE(path.stat().st_mode) == expected
+    assert stat.S_IMODE(ref.stat().st_mode) == expected
