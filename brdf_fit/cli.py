@@ -37,6 +37,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 
 import numpy as np
@@ -428,7 +429,8 @@ def cmd_fit(args) -> int:
     from brdf_fit.fitting.single import fit
 
     reg = _registry()
-    entry = reg.get(args.model)  # unknown models fail before the data are read
+    entry = _target_entry(reg, args.model, args.target)  # fails before the data are read
+    export_kind = _export_kind(args.export, args.target)
     fix = parse_params(args.fix, entry, "--fix")
     init = parse_params(args.init, entry, "--init")
     both = sorted(set(fix) & set(init))
@@ -452,12 +454,98 @@ def cmd_fit(args) -> int:
                  cos_weight=args.cos_weight, max_zenith_deg=args.max_zenith_deg,
                  multistart=args.multistart, seed=args.seed, max_steps=args.max_steps,
                  checks=checks, guess=args.guess)
+    exported = None
+    if export_kind is not None:
+        exported = _write_export(export_kind, args.export, entry.name, result.params, data,
+                                 name=os.path.splitext(os.path.basename(args.data))[0])
     if args.json:
-        print(json.dumps(result.to_dict(), indent=2))
+        doc = result.to_dict()
+        if exported is not None:
+            doc["export"] = exported
+        print(json.dumps(doc, indent=2))
     else:
         _print_fit(result, data, args.data)
+        if exported is not None:
+            err = exported["error"]
+            print(f"export: {exported['target']} {exported['method']} "
+                  + ("(not verified)" if err is None else f"(round-trip error {err:.3g})")
+                  + f": {exported['note']}")
+            print(f"wrote {args.export}")
     failed = [c for c in result.checks if not c.ok]
     return 0 if result.converged and not failed else 1
+
+
+#: export targets by output extension
+_EXPORT_EXT = {".xml": "mitsuba", ".gltf": "gltf"}
+
+
+def _target_entry(reg, model: str, target: str | None):
+    """The registry entry ``model`` names; with ``--target T`` it must be written to T with no
+    loss, and a bare plugin name is looked up as ``T-NAME`` (``roughplastic`` ->
+    ``mitsuba-roughplastic``)."""
+    if target is None:
+        return reg.get(model)
+    from brdf_fit.selection.selector import (
+        TARGETS,
+        anisotropic_candidates,
+        exports_exactly,
+        target_candidates,
+    )
+
+    if target not in TARGETS:
+        raise CLIError(f"--target must be one of {', '.join(TARGETS)}, got {target!r}")
+    for name in (model, f"{target}-{model}"):
+        try:
+            e = reg.get(name)
+        except KeyError:
+            continue
+        if exports_exactly(e.name, target):
+            return e
+    models = (*target_candidates(target), *anisotropic_candidates(target))
+    raise CLIError(f"--target {target}: {model!r} is not one of its models (written to "
+                   f"{target} as fitted): {', '.join(models)}")
+
+
+def _export_kind(path: str | None, target: str | None) -> str | None:
+    if path is None:
+        return None
+    ext = os.path.splitext(path)[1].lower()
+    kind = _EXPORT_EXT.get(ext)
+    if kind is None:
+        raise CLIError(f"--export: {path!r} must end in .xml (Mitsuba 3) or .gltf (glTF 2.0)")
+    if target is not None and kind != target:
+        raise CLIError(f"--export {path}: a {ext} file is a {kind} export, but --target is "
+                       f"{target}")
+    check_output_file(path, (ext,), "--export")
+    return kind
+
+
+def _write_export(kind: str, path: str, model: str, params: dict, data, name: str) -> dict:
+    """Write ``model`` at ``params`` to ``path`` (Mitsuba XML or glTF), its round trip
+    measured on the data's own geometry; returns what was written."""
+    p = {k: np.asarray(v, np.float64) for k, v in params.items()}
+    geometry = (data.wi, data.wo)
+    if kind == "mitsuba":
+        from brdf_fit.convert import mitsuba as cmi
+
+        try:
+            e = cmi.to_mitsuba(model, p, name=name, geometry=geometry)
+        except cmi.ExportError as exc:
+            raise CLIError(f"--export: {exc}") from None
+        text = cmi.scene_document([(name, e.scene_dict)],
+                                  comment=f"brdf_fit fit: {model} fitted to {name}")
+        with open(path, "w", encoding="utf-8") as fh:
+            fh.write(text)
+    else:
+        from brdf_fit.convert import gltf as cg
+
+        try:
+            e = cg.to_gltf(model, p, name=name, geometry=geometry)
+        except cg.ExportError as exc:
+            raise CLIError(f"--export: {exc}") from None
+        cg.write_gltf(path, [e])
+    return {"target": kind, "path": path, "method": e.method, "error": e.error,
+            "note": e.note}
 
 
 class _BatchProgress(_Progress):
@@ -982,10 +1070,22 @@ def cmd_select(args) -> int:
     if (args.scene is None) == (args.data is None):
         raise CLIError("select needs a DATA file or --scene TOML (one of them)")
     if args.scene is None:
-        for flag, v in (("--max-models", args.max_models), ("--gltf", args.gltf),
-                        ("--mitsuba", args.mitsuba), ("--skip-bad", args.skip_bad or None)):
+        for flag, v in (("--max-models", args.max_models),
+                        ("--skip-bad", args.skip_bad or None)):
             if v is not None:
                 raise CLIError(f"{flag} needs --scene")
+    if args.ceiling is not None and not args.ceiling > 0:
+        raise CLIError(f"--ceiling must be a positive number (or inf), got {args.ceiling}")
+    if args.target is not None:
+        from brdf_fit.selection.selector import TARGETS
+
+        if args.target not in TARGETS:
+            raise CLIError(f"--target must be one of {', '.join(TARGETS)}, got "
+                           f"{args.target!r}")
+    if args.gltf is not None:
+        check_output_file(args.gltf, (".gltf",), "--gltf")
+    if args.mitsuba is not None:
+        check_output_file(args.mitsuba, (".xml",), "--mitsuba")
     reg = _registry()
     names = None
     if args.candidates is not None and args.family is not None:
@@ -1011,8 +1111,11 @@ def cmd_select(args) -> int:
 
     bar, progress = _progress_callback(not args.quiet, lambda name: f"fitting {name}")
     try:
-        sel = select(data, names, args.budget, checks=() if args.no_checks else checks,
-                     progress=progress)
+        sel = select(data, names, args.budget, target=args.target,
+                     checks=() if args.no_checks else checks, ceiling=args.ceiling,
+                     anisotropy=not args.no_anisotropy, progress=progress)
+    except ValueError as exc:
+        raise CLIError(str(exc)) from None
     finally:
         bar.close()
     doc = sel.to_dict()
@@ -1022,17 +1125,55 @@ def cmd_select(args) -> int:
 
         selection_front(sel, title=args.data).savefig(args.plot, dpi=110)
         doc["plot"] = args.plot
+    exports = []
+    chosen = sel.choice
+    if chosen is not None:
+        name = os.path.splitext(os.path.basename(args.data))[0]
+        for kind, path in (("mitsuba", args.mitsuba), ("gltf", args.gltf)):
+            if path is not None:
+                exports.append(_write_export(kind, path, chosen,
+                                             sel.candidate(chosen).params, data, name))
+    doc["exports"] = exports
+    status = 0 if sel.choice is not None and sel.represented else 1
     if args.json:
-        print(json.dumps(doc, indent=2))
-        return 0 if sel.choice is not None else 1
+        print(json.dumps(doc, indent=2, allow_nan=False))
+        return status
     print(f"{args.data}: {data.n} samples x {data.n_channels} channels")
     print(f"error: {sel.error_definition}")
     print(f"budget: {sel.budget:.4g} ({sel.budget_rule})")
     if sel.noise_level is not None:
         print(f"noise level (from sigma): {sel.noise_level:.4g}")
+    print(f"ceiling: {sel.ceiling:.4g} ({sel.ceiling_rule})")
+    if sel.anisotropy is not None:
+        a = sel.anisotropy
+        stat = "-" if a.statistic is None else f"{a.statistic:.3f}"
+        print(f"anisotropy: statistic {stat} (threshold {a.threshold:g}): {a.note}")
+    if sel.target is not None:
+        print(f"target: {sel.target} (every candidate is written to it as fitted)")
+    print(f"cost: {sel.cost_rule}")
+    _print_candidates(sel)
+    print(sel.message if sel.choice is None else
+          f"choice: {sel.choice} ({_short_params(sel.candidate(sel.choice).params)}), error "
+          f"{sel.candidate(sel.choice).error:.4g}, {_cost_txt(sel.candidate(sel.choice))}")
+    for ex in exports:
+        err = ex["error"]
+        print(f"export: {ex['target']} {ex['method']} "
+              + ("(not verified)" if err is None else f"(round-trip error {err:.3g})")
+              + f"; wrote {ex['path']}")
+    if args.plot is not None:
+        print(f"wrote {args.plot}")
+    return status
+
+
+def _cost_txt(c) -> str:
+    rel = "" if c.cost_rel is None else f"{c.cost_rel:.2f}x Lambert (committed), "
+    return f"{rel}{c.cost_ns:.3g} ns per evaluation (live)"
+
+
+def _print_candidates(sel) -> None:
     w = max(len(c.model) for c in sel.candidates)
-    print(f"  {'model':<{w}} {'error':>8} {'ns/eval':>8} {'k':>3} {'AIC':>10} {'BIC':>10} "
-          f"{'chi2/dof':>9} {'conv':>5}  budget pareto checks")
+    print(f"  {'model':<{w}} {'error':>8} {'x lamb':>6} {'ns/eval':>8} {'k':>3} {'AIC':>10} "
+          f"{'BIC':>10} {'chi2/dof':>9} {'conv':>5}  budget pareto checks")
     for c in sel.candidates:
         if c.message:
             print(f"  {c.model:<{w}} no fit: {c.message}")
@@ -1040,29 +1181,17 @@ def cmd_select(args) -> int:
         chi2 = "-" if c.reduced_chi2 is None else f"{c.reduced_chi2:.3g}"
         checks_txt = ",".join(f"{k}:{v}" for k, v in c.checks.items()) or "-"
         mark = "<- choice" if c.model == sel.choice else ""
-        print(f"  {c.model:<{w}} {c.error:8.4f} {c.cost_ns:8.2f} {c.n_params:3d} {c.aic:10.1f} "
-              f"{c.bic:10.1f} {chi2:>9} {'yes' if c.converged else 'no':>5}  "
+        rel = "-" if c.cost_rel is None else f"{c.cost_rel:.2f}"
+        print(f"  {c.model:<{w}} {c.error:8.4f} {rel:>6} {c.cost_ns:8.2f} {c.n_params:3d} "
+              f"{c.aic:10.1f} {c.bic:10.1f} {chi2:>9} {'yes' if c.converged else 'no':>5}  "
               f"{'in' if c.within_budget else 'out':>6} {'*' if c.pareto else ' ':>6} "
               f"{checks_txt} {mark}")
-    if sel.choice is None:
-        print("no candidate is within the budget")
-    else:
-        ch = sel.candidate(sel.choice)
-        print(f"choice: {sel.choice} ({_short_params(ch.params)}), error {ch.error:.4g}, "
-              f"{ch.cost_ns:.3g} ns per evaluation")
-    if args.plot is not None:
-        print(f"wrote {args.plot}")
-    return 0 if sel.choice is not None else 1
 
 
 def _select_scene(args, names, checks) -> int:
     """``select --scene``: every material's choice, the model set, the exports."""
     if args.max_models is not None and args.max_models < 1:
         raise CLIError(f"--max-models must be an integer >= 1, got {args.max_models}")
-    if args.gltf is not None:
-        check_output_file(args.gltf, (".gltf",), "--gltf")
-    if args.mitsuba is not None:
-        check_output_file(args.mitsuba, (".xml",), "--mitsuba")
     _x64()
     from brdf_fit.selection import scene as sc
 
@@ -1074,11 +1203,11 @@ def _select_scene(args, names, checks) -> int:
         raise CLIError(str(exc)) from None
     bar, progress = _progress_callback(not args.quiet, lambda what: f"fitting {what}")
     try:
-        res = sc.select_scene(scene, names, args.budget, family=None,
+        res = sc.select_scene(scene, names, args.budget, family=None, target=args.target,
                               max_models=args.max_models, skip_bad=args.skip_bad,
                               checks=() if args.no_checks or not args.check else checks,
-                              progress=progress)
-    except sc.SceneError as exc:
+                              ceiling=args.ceiling, progress=progress)
+    except (sc.SceneError, ValueError) as exc:
         raise CLIError(str(exc)) from None
     finally:
         bar.close()
@@ -1090,10 +1219,13 @@ def _select_scene(args, names, checks) -> int:
         scene_front(res, title=res.scene.name).savefig(args.plot, dpi=110)
         written.append(args.plot)
     doc["written"] = written
+    status = 0 if not res.scene.bad and not res.unrepresented() else 1
     if args.json:
         print(json.dumps(doc, indent=2, allow_nan=False))
-        return 0 if not res.scene.bad else 1
-    print(f"{args.scene}: {len(res.materials)} materials ({res.seconds:.1f} s)")
+        return status
+    print(f"{args.scene}: {len(res.materials)} materials ({res.seconds:.1f} s)"
+          + ("" if res.materials[0].selection.target is None else
+             f", target {res.materials[0].selection.target}"))
     w = max(len(c.material.name) for c in res.materials)
     wm = max(len(c.model) for c in res.materials)
     print(f"  {'material':<{w}} {'kind':<5} {'model':<{wm}} {'error':>8} {'budget':>8} "
@@ -1108,6 +1240,11 @@ def _select_scene(args, names, checks) -> int:
               f"{c.selection.budget:8.4f} {c.cost_ns:8.2f}  {ex}")
         for n in c.material.notes:
             print(f"  {'':<{w}}   note: {n}")
+        a = c.selection.anisotropy
+        if a is not None and a.present:
+            print(f"  {'':<{w}}   {a.note}")
+        if not c.selection.represented:
+            print(f"  {'':<{w}}   {c.selection.message}")
         for k, v in c.exports.items():
             if "failed" in v:
                 print(f"  {'':<{w}}   {k} export failed: {v['failed']}")
@@ -1116,9 +1253,12 @@ def _select_scene(args, names, checks) -> int:
           f"{res.worst_error:.4g}")
     for b in res.scene.bad:
         print(f"skipped: {b['error']}")
+    if res.unrepresented():
+        print(f"not represented by any candidate: {', '.join(res.unrepresented())} (exit "
+              "status 1)")
     for path in written:
         print(f"wrote {path}")
-    return 0 if not res.scene.bad else 1
+    return status
 
 
 LUT_TABLES = ("dfg", "albedo", "eavg")
@@ -1379,6 +1519,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="fit a seeded random subset of N samples (e.g. of a MERL file)")
     f.add_argument("--check", action="append", metavar="NAME",
                    help="run this check on the fitted model (repeatable)")
+    f.add_argument("--target", default=None, metavar="T",
+                   help="mitsuba or gltf: fit a model the target holds as fitted (a native "
+                        "entry; a bare plugin name like roughplastic means mitsuba-roughplastic)")
+    f.add_argument("--export", default=None, metavar="OUT",
+                   help="write the fitted model for a renderer: .xml (Mitsuba 3 scene with one "
+                        "bsdf) or .gltf (glTF 2.0 material), checked by round trip on the data")
     f.add_argument("--json", action="store_true", help="print FitResult.to_dict()")
     f.add_argument("--quiet", action="store_true", help="no status line on stderr")
     f.set_defaults(func=cmd_fit)
@@ -1443,9 +1589,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="with --scene: at most K models for the whole scene (the set that "
                          "minimises the worst error)")
     se.add_argument("--gltf", default=None, metavar="OUT.gltf",
-                    help="with --scene: write the chosen materials as glTF 2.0 materials")
+                    help="write the chosen material(s) as glTF 2.0 materials")
     se.add_argument("--mitsuba", default=None, metavar="OUT.xml",
-                    help="with --scene: write the chosen materials as Mitsuba 3 bsdfs")
+                    help="write the chosen material(s) as Mitsuba 3 bsdfs")
     se.add_argument("--skip-bad", action="store_true",
                     help="with --scene: list bad materials and select the others")
     se.add_argument("--candidates", default=None, metavar="A,B,...",
@@ -1459,6 +1605,16 @@ def build_parser() -> argparse.ArgumentParser:
                     help="largest relative RMS radiance error (0.02 = 2%%; default: twice the "
                          "best candidate's error, at least 1.5x the noise level with sigma, "
                          "at least 0.01)")
+    se.add_argument("--target", default=None, metavar="T",
+                    help="mitsuba or gltf: select among the models the target holds as fitted "
+                         "(its native entries), so the export is the fit itself")
+    se.add_argument("--ceiling", type=float, default=None, metavar="E",
+                    help="error above which no candidate represents the material (default: "
+                         "0.05 above the noise level; inf turns it off); then the exit "
+                         "status is 1")
+    se.add_argument("--no-anisotropy", action="store_true",
+                    help="skip the anisotropy test (it adds anisotropic candidates when the "
+                         "data need two widths)")
     se.add_argument("--check", action="append", metavar="NAME",
                     help="checks run on each fitted candidate (default: reciprocity, energy)")
     se.add_argument("--no-checks", action="store_true", help="run no checks")

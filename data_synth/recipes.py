@@ -52,7 +52,11 @@ from .plans import PlanError, make_plan
 
 __all__ = ["RecipeError", "RECIPE_KEYS", "load_recipe", "normalize_recipe", "synthesize"]
 
-RECIPE_KEYS = ("name", "description", "model", "params", "plan", "noise", "seed", "channels")
+RECIPE_KEYS = ("name", "description", "model", "params", "plan", "noise", "seed", "channels",
+               "bsdf")
+#: ``model`` of a recipe rendered by Mitsuba 3 itself: ``bsdf`` then holds the plugin's scene
+#: dict (``type`` and its properties; a list of three numbers is an ``rgb`` value)
+RENDERER_MODELS = ("mitsuba",)
 _REQUIRED = ("model", "plan", "seed")
 
 
@@ -179,14 +183,24 @@ def synthesize(recipe) -> GonioData:
     r = normalize_recipe(recipe)
     seed = int(r["seed"])
 
-    try:
-        entry = registry.get(r["model"])
-    except registry.UnknownModelError as e:
-        raise RecipeError(f"recipe {where}: model: {e}") from None
-    try:
-        model = entry.build(**{k: np.asarray(v, dtype=float) for k, v in r["params"].items()})
-    except (ParameterError, ValueError, TypeError) as e:
-        raise RecipeError(f"recipe {where}: params: {e}") from None
+    rendered = str(r["model"]).strip().lower() in RENDERER_MODELS
+    if rendered:
+        evaluate_pairs = _mitsuba_evaluator(r, where)
+        model_name = f"mitsuba:{r['bsdf']['type']}"
+    else:
+        if "bsdf" in r:
+            raise RecipeError(f"recipe {where}: 'bsdf' goes with model = \"mitsuba\" (a scene "
+                              f"dict Mitsuba 3 renders), not with model {r['model']!r}")
+        try:
+            entry = registry.get(r["model"])
+        except registry.UnknownModelError as e:
+            raise RecipeError(f"recipe {where}: model: {e}") from None
+        try:
+            model = entry.build(**{k: np.asarray(v, dtype=float)
+                                   for k, v in r["params"].items()})
+        except (ParameterError, ValueError, TypeError) as e:
+            raise RecipeError(f"recipe {where}: params: {e}") from None
+        model_name = entry.name
 
     plan_args = dict(r["plan"]["args"])
     key = str(r["plan"]["name"]).strip().lower().replace("-", "_")
@@ -204,17 +218,21 @@ def synthesize(recipe) -> GonioData:
     except NoiseError as e:
         raise RecipeError(f"recipe {where}: noise: {e}") from None
 
-    f = jax.jit(lambda a, b: model.eval(a, b))
+    if rendered:
+        def evaluate(wi, wo):
+            return evaluate_pairs(np.asarray(wi), np.asarray(wo))
+    else:
+        f = jax.jit(lambda a, b: model.eval(a, b))
 
-    def evaluate(wi, wo):
-        v = np.asarray(f(wi, wo), dtype=np.float64)
-        return v[:, None] if v.ndim == 1 else v
+        def evaluate(wi, wo):
+            v = np.asarray(f(wi, wo), dtype=np.float64)
+            return v[:, None] if v.ndim == 1 else v
 
     clean, values, sigma, truth = run_pipeline(noise, plan.wi, plan.wo, evaluate, seed)
     channels = _channel_names(r.get("channels"), values.shape[1], where)
     metadata = {
         "recipe": r,
-        "model": entry.name,
+        "model": model_name,
         "params": {k: np.asarray(v).tolist() for k, v in r["params"].items()},
         "plan": plan.info,
         "noise": [m.spec() for m in noise],
@@ -228,3 +246,44 @@ def synthesize(recipe) -> GonioData:
         return data.validate()
     except DataError as e:
         raise RecipeError(f"recipe {where}: the synthesised data is invalid ({e})") from None
+
+
+def _mitsuba_dict(value):
+    """A recipe's ``bsdf`` table as ``mi.load_dict`` takes it: a list of three numbers is an
+    ``rgb`` value, nested tables (textures, nested BSDFs) are converted alike."""
+    if isinstance(value, dict):
+        return {k: _mitsuba_dict(v) for k, v in value.items()}
+    if isinstance(value, list) and len(value) == 3 and all(
+            isinstance(x, (int, float)) and not isinstance(x, bool) for x in value):
+        return {"type": "rgb", "value": [float(x) for x in value]}
+    return value
+
+
+def _mitsuba_evaluator(r: dict, where):
+    """``evaluate(wi, wo) -> (N, 3)``: the recipe's ``bsdf`` rendered by Mitsuba 3's own
+    ``BSDF.eval`` (:func:`brdf_fit.convert.mitsuba.mitsuba_eval`, ``scalar_rgb``)."""
+    from brdf_fit.convert.mitsuba import mitsuba_eval
+
+    bsdf = r.get("bsdf")
+    if not isinstance(bsdf, dict) or not isinstance(bsdf.get("type"), str):
+        raise RecipeError(f"recipe {where}: model = \"mitsuba\" needs a [bsdf] table with a "
+                          "'type' (a Mitsuba 3 plugin name) and its properties")
+    if r["params"]:
+        raise RecipeError(f"recipe {where}: a Mitsuba-rendered recipe takes its properties in "
+                          "[bsdf], not [params]")
+    scene = _mitsuba_dict(bsdf)
+    try:
+        import mitsuba  # noqa: F401
+    except ImportError:
+        raise RecipeError(f"recipe {where}: rendering with Mitsuba 3 needs it installed "
+                          "(pip install 'brdf_fit[mitsuba]')") from None
+    try:
+        mitsuba_eval(scene, np.array([[0.0, 0.0, 1.0]]), np.array([[0.0, 0.0, 1.0]]))
+    except Exception as e:  # Mitsuba raises RuntimeError/TypeError for a bad scene dict
+        raise RecipeError(f"recipe {where}: bsdf: Mitsuba refused it: "
+                          f"{str(e).splitlines()[0] if str(e) else type(e).__name__}") from None
+
+    def evaluate(wi, wo):
+        return mitsuba_eval(scene, wi, wo)
+
+    return evaluate

@@ -81,6 +81,7 @@ from brdf_fit.core.fresnel import ConductorFresnel, conductor, ior_from_f0, schl
 from brdf_fit.core.microfacet import GGX, Beckmann, SmithSeparable
 from brdf_fit.core.numerics import INV_PI
 from brdf_fit.models.microfacet_brdf import MicrofacetBRDF
+from brdf_fit.models.mitsuba import MITSUBA_VERSION
 
 __all__ = [
     "MITSUBA_EXTRA",
@@ -96,6 +97,8 @@ __all__ = [
     "separable_conductor",
     "to_mitsuba",
     "scene_dict_to_xml",
+    "scene_document",
+    "xml_comment",
 ]
 
 #: the optional extra that installs Mitsuba (``pip install brdf_fit[mitsuba]``)
@@ -394,6 +397,28 @@ def _xml_bsdf(d: dict, indent: str, name: str | None = None, bsdf_id: str | None
     return lines + [f"{indent}</bsdf>"]
 
 
+def xml_comment(text: str) -> str:
+    """``<!-- text -->`` that XML allows: a comment may not contain ``--`` nor end in ``-``
+    (XML 1.0, production [15]); each ``--`` becomes ``- -``."""
+    t = str(text)
+    while "--" in t:
+        t = t.replace("--", "- -")
+    if t.endswith("-"):
+        t += " "
+    return f"<!-- {t} -->"
+
+
+def scene_document(bsdfs: list[tuple[str, dict]], comment: str | None = None) -> str:
+    """A Mitsuba 3 XML ``<scene>`` holding one ``<bsdf id=...>`` per ``(id, scene_dict)``,
+    well-formed XML (``xml.etree`` parses it; ``mi.load_string`` loads it)."""
+    parts = [scene_dict_to_xml(d, bsdf_id=i, version=None) for i, d in bsdfs]
+    return ('<?xml version="1.0" encoding="utf-8"?>\n'
+            + ("" if comment is None else xml_comment(comment) + "\n")
+            + '<scene version="3.0.0">\n'
+            + "".join("    " + ln + "\n" for p in parts for ln in p.strip().splitlines())
+            + "</scene>\n")
+
+
 def scene_dict_to_xml(scene_dict: dict, bsdf_id: str | None = None,
                       version: str = "3.0.0") -> str:
     """A Mitsuba 3 XML ``<bsdf>`` element of ``scene_dict`` (the dict forms this module writes:
@@ -424,10 +449,12 @@ def to_mitsuba(model_name: str, params: dict | None = None, *, name: str | None 
     :data:`MAX_MITSUBA_SAMPLES`) and the one with the smallest :data:`ERROR_MEASURE` is kept.
     Models without a mapping raise :class:`ExportError`."""
     entry, model, full = export_source(model_name, params)
-    if entry.name not in MAPPINGS:
+    native = entry.target == "mitsuba"
+    if not native and entry.name not in MAPPINGS:
         raise ExportError(
             f"cannot export {entry.name!r} to Mitsuba 3: no plugin with its semantics is mapped "
-            f"(mapped: {', '.join(MAPPINGS)}); export it to glTF (fitted) or fit a mapped model")
+            f"(mapped: {', '.join(MAPPINGS)}, and the native mitsuba-* entries); fit with "
+            "--target mitsuba, or export it to glTF (fitted)")
     p = _rgb_params(entry.name, full)
     name = entry.name if name is None else str(name)
     if geometry is None:
@@ -438,10 +465,15 @@ def to_mitsuba(model_name: str, params: dict | None = None, *, name: str | None 
     else:
         wi, wo = (np.asarray(g, float) for g in geometry)
         text = f"user geometry: {wi.shape[0]} direction pairs"
-    kinds = MAPPINGS[entry.name]
     f_src = source_rgb(model, wi, wo, entry.name)
-    target = f_src - (np.asarray(p["rho_d"]) * INV_PI if "rho_d" in p else 0.0)
-    dicts = {k: _candidate(k, entry.name, p, (wi, wo, target)) for k in kinds}
+    if native:
+        d_native = entry.native_export(p)
+        kinds = (d_native["type"],)
+        dicts = {d_native["type"]: d_native}
+    else:
+        kinds = MAPPINGS[entry.name]
+        target = f_src - (np.asarray(p["rho_d"]) * INV_PI if "rho_d" in p else 0.0)
+        dicts = {k: _candidate(k, entry.name, p, (wi, wo, target)) for k in kinds}
     mi = _mitsuba() if verify else None
     errors: dict = {}
     split = [None, None]
@@ -465,8 +497,10 @@ def to_mitsuba(model_name: str, params: dict | None = None, *, name: str | None 
         error = None
         verified = ("not verified: mitsuba not installed" if verify else
                     "not verified: verify=False")
-    exact = (entry.name, best) in _EXACT
-    note = f"{_NOTES[best]}; {verified}"
+    exact = native or (entry.name, best) in _EXACT
+    note = (f"native entry: Mitsuba's {best} plugin itself, every parameter written as fitted "
+            f"(brdf_fit.models.mitsuba, checked against Mitsuba {MITSUBA_VERSION}); {verified}"
+            if native else f"{_NOTES[best]}; {verified}")
     if len(kinds) > 1 and errors:
         note += "; candidates: " + ", ".join(f"{k} {errors[k]:.3g}" for k in kinds)
     d = dicts[best]

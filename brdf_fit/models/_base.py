@@ -158,6 +158,15 @@ class AbstractBRDF(eqx.Module):
         ``anisotropic``)."""
         return self.anisotropic
 
+    def prepared(self) -> AbstractBRDF:
+        """The model as a renderer holds it: what depends on the parameters alone (a table a
+        plugin builds when its parameters change) computed once, so that ``eval`` costs what a
+        renderer's per-pair evaluation costs. The values are the same. Default: ``self``
+        (nothing to precompute); compound models prepare their lobes. Cost measurements
+        (:func:`brdf_fit.selection.measure_cost`, ``benchmarks/bench_catalogue_cost.py``) time
+        the prepared model."""
+        return self
+
     def delta_albedo(self, wo):
         """Closed-form directional albedo of a delta lobe (``is_delta``), which quadrature cannot
         integrate. Default: raises ``TypeError``."""

@@ -362,6 +362,9 @@ class MitsubaPlasticDiffuse(AbstractBRDF):
     eta: Scalar = bounded(1.49 / AIR_IOR, lo=1.0, lo_open=True)
     distribution: str = eqx.field(static=True, default="ggx")
     nonlinear: bool = eqx.field(static=True, default=False)
+    #: ``(T, Fdr_int)`` computed once (:meth:`prepared`, what the plugin holds between
+    #: evaluations); None: computed in every ``eval`` from ``alpha`` and ``eta`` (fits)
+    precomputed: tuple | None = None
 
     def __check_init__(self):
         check_param("reflectance", self.reflectance, lo=0.0, owner="MitsubaPlasticDiffuse")
@@ -372,7 +375,20 @@ class MitsubaPlasticDiffuse(AbstractBRDF):
                              f"{self.distribution!r}")
 
     def tables(self, dtype):
+        if self.precomputed is not None:
+            t, fdr = self.precomputed
+            return jnp.asarray(t, dtype)[..., 0], jnp.asarray(fdr, dtype)
         return rough_dielectric_tables(self.alpha, self.eta, self.distribution, dtype)
+
+    def prepared(self):
+        """This lobe with its tables computed once (the plugin's ``parameters_changed``)."""
+        if self.precomputed is not None:
+            return self
+        dt = jnp.result_type(self.reflectance, self.alpha, self.eta)
+        t, fdr = self.tables(dt)
+        # T stored as (64, 1): a trailing axis of 1 is not a channel axis (models._base)
+        return eqx.tree_at(lambda m: m.precomputed, self, (t[:, None], fdr),
+                           is_leaf=lambda x: x is None)
 
     def eval(self, wi, wo):
         ci, co = wi[..., 2], wo[..., 2]

@@ -44,6 +44,9 @@ class Scaled(AbstractBRDF):
     def is_delta(self):  # type: ignore[override]
         return self.lobe.is_delta
 
+    def prepared(self):
+        return Scaled(lobe=self.lobe.prepared(), scale=self.scale)
+
     def terms(self):
         return ((self.scale, self.lobe),)
 
@@ -109,6 +112,9 @@ class Mixture(AbstractBRDF):
 
     def selection_hint(self):
         return sum(lobe.selection_hint() for lobe in self.lobes)
+
+    def prepared(self):
+        return Mixture(lobes=tuple(lobe.prepared() for lobe in self.lobes))
 
     def terms(self):
         return tuple((1.0, lobe) for lobe in self.lobes)

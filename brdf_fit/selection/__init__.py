@@ -6,17 +6,24 @@ the choice. It lives in :mod:`brdf_fit.selection.selector` (a module named ``sel
 shadowed by the function of the same name re-exported here).
 """
 
+from brdf_fit.selection.anisotropy import AnisotropyTest, detect_anisotropy
 from brdf_fit.selection.selector import (
+    CEILING_ABOVE_NOISE,
     DEFAULT_CANDIDATES,
     ERROR_DEFINITION,
     FAMILIES,
+    TARGETS,
     Candidate,
     Selection,
+    exports_exactly,
     family_candidates,
     measure_cost,
     radiance_error,
     select,
+    target_candidates,
 )
 
-__all__ = ["DEFAULT_CANDIDATES", "ERROR_DEFINITION", "FAMILIES", "Candidate", "Selection",
-           "family_candidates", "measure_cost", "radiance_error", "select"]
+__all__ = ["CEILING_ABOVE_NOISE", "DEFAULT_CANDIDATES", "ERROR_DEFINITION", "FAMILIES",
+           "TARGETS", "AnisotropyTest", "Candidate", "Selection", "detect_anisotropy",
+           "exports_exactly", "family_candidates", "measure_cost", "radiance_error", "select",
+           "target_candidates"]

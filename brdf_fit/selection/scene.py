@@ -63,7 +63,14 @@ from brdf_fit.core.validate import ParameterError
 from brdf_fit.data import DataError, GonioData
 from brdf_fit.fitting.problem import FitError
 from brdf_fit.io.mtl import MtlError, read_mtl
-from brdf_fit.selection.selector import DEFAULT_CANDIDATES, Selection, family_candidates, select
+from brdf_fit.selection.selector import (
+    DEFAULT_CANDIDATES,
+    TARGETS,
+    Selection,
+    family_candidates,
+    select,
+    target_candidates,
+)
 
 __all__ = ["EXAMPLE_SCENE", "KINDS", "LOBE_WIDTHS", "SceneError", "SceneMaterial", "Scene",
            "MaterialChoice", "SceneSelection", "best_model_set", "export_scene", "load_scene",
@@ -80,7 +87,7 @@ LOBE_WIDTHS = (0.05, 0.3)
 #: largest zenith of either direction in :func:`scene_geometry` (degrees)
 SCENE_MAX_ZENITH_DEG = 80.0
 _MATERIAL_KEYS = {"name", "materials", "params", *KINDS}
-_SCENE_KEYS = {"name", "budget", "max_models", "candidates", "family"}
+_SCENE_KEYS = {"name", "budget", "max_models", "candidates", "family", "target"}
 
 
 class SceneError(ValueError):
@@ -160,6 +167,9 @@ def _settings(doc: dict, path: str, text: str) -> dict:
         raise SceneError(path, line, f"[scene] max_models must be an integer >= 1, got {k!r}")
     if "candidates" in s and "family" in s:
         raise SceneError(path, line, "[scene]: give candidates or family, not both")
+    if "target" in s and s["target"] not in TARGETS:
+        raise SceneError(path, line, f"[scene] target must be one of {', '.join(TARGETS)}, "
+                         f"got {s['target']!r}")
     try:
         if "family" in s:
             family_candidates(s["family"])
@@ -358,6 +368,10 @@ class SceneSelection:
     costs: dict
     seconds: float
 
+    def unrepresented(self) -> list[str]:
+        """Materials no candidate represents (their selection's ``represented`` is False)."""
+        return [m.material.name for m in self.materials if not m.selection.represented]
+
     def to_dict(self) -> dict:
         return {
             "scene": self.scene.path, "name": self.scene.name,
@@ -366,6 +380,7 @@ class SceneSelection:
             "max_models": self.max_models, "set_rule": self.set_rule,
             "costs_ns": {k: _num(v) for k, v in sorted(self.costs.items())},
             "materials": [m.to_dict() for m in self.materials],
+            "unrepresented": self.unrepresented(),
             "bad": self.scene.bad, "seconds": round(self.seconds, 3),
         }
 
@@ -387,33 +402,39 @@ def best_model_set(errors: np.ndarray, costs: Sequence[float], k: int) -> tuple[
 
 def select_scene(scene: Scene, candidates: Sequence[str] | None = None,
                  budget: float | None = None, *, family: str | None = None,
-                 max_models: int | None = None, skip_bad: bool = False,
-                 checks: Sequence[str] = (),
+                 target: str | None = None, max_models: int | None = None,
+                 skip_bad: bool = False, checks: Sequence[str] = (),
+                 ceiling: float | None = None,
                  progress: Callable[[int, int, str], None] | None = None) -> SceneSelection:
     """Select a model for every material of ``scene`` and the scene's model set (module
-    docstring). Arguments left None take the scene file's ``[scene]`` settings. A material whose
-    every candidate fails is a :class:`SceneError`, or with ``skip_bad`` listed in
-    ``scene.bad`` (the materials already selected are kept either way in the result)."""
+    docstring). Arguments left None take the scene file's ``[scene]`` settings. ``target``:
+    select in the models of a renderer or format (:func:`brdf_fit.selection.select`), so the
+    exports are the fits themselves. A material whose every candidate fails is a
+    :class:`SceneError`, or with ``skip_bad`` listed in ``scene.bad`` (the materials already
+    selected are kept either way in the result)."""
     t0 = time.perf_counter()
     st = scene.settings
+    target = st.get("target") if target is None else target
     if candidates is None and family is None:
         candidates, family = st.get("candidates"), st.get("family")
-    if candidates is None and family is None:
-        candidates = DEFAULT_CANDIDATES
-    names = list(family_candidates(family) if family is not None else candidates)
+    names = (None if candidates is None and family is None else
+             list(family_candidates(family) if family is not None else candidates))
     budget = st.get("budget") if budget is None else budget
     max_models = st.get("max_models") if max_models is None else max_models
     if max_models is not None and max_models < 1:
         raise ValueError(f"max_models must be >= 1, got {max_models}")
     costs: dict[str, float] = {}
-    total = len(scene.materials) * len(names)
+    n_cand = len(names) if names is not None else len(
+        DEFAULT_CANDIDATES if target is None else target_candidates(target))
+    total = len(scene.materials) * n_cand
     choices: list[MaterialChoice] = []
     for i, mat in enumerate(scene.materials):
         def sub(done, _n, model, i=i, mat=mat):
             if progress is not None:
-                progress(i * len(names) + done, total, f"{mat.name}: {model}")
+                progress(i * n_cand + min(done, n_cand), total, f"{mat.name}: {model}")
         try:
-            sel = select(mat.data, names, budget, checks=checks, progress=sub, costs=costs)
+            sel = select(mat.data, names, budget, target=target, checks=checks, progress=sub,
+                         costs=costs, ceiling=ceiling)
         except (FitError, ParameterError, ValueError) as exc:
             err = SceneError(scene.path, mat.line, f"material {mat.name!r}: {exc}", mat.name)
             if not skip_bad:
@@ -426,7 +447,8 @@ def select_scene(scene: Scene, candidates: Sequence[str] | None = None,
         progress(total, total, "done")
     if not choices:
         raise SceneError(scene.path, 0, "no material could be selected")
-    return _assign(scene, choices, names, costs, max_models, time.perf_counter() - t0)
+    union = list(dict.fromkeys(c.model for ch in choices for c in ch.selection.candidates))
+    return _assign(scene, choices, union, costs, max_models, time.perf_counter() - t0)
 
 
 def with_max_models(result: SceneSelection, max_models: int | None) -> SceneSelection:
@@ -436,7 +458,8 @@ def with_max_models(result: SceneSelection, max_models: int | None) -> SceneSele
         raise ValueError(f"max_models must be >= 1, got {max_models}")
     choices = [MaterialChoice(c.material, c.selection, None, float("inf"), float("nan"))
                for c in result.materials]
-    names = [c.model for c in result.materials[0].selection.candidates]
+    names = list(dict.fromkeys(c.model for ch in result.materials
+                               for c in ch.selection.candidates))
     return _assign(result.scene, choices, names, result.costs, max_models, result.seconds)
 
 
@@ -471,7 +494,10 @@ def _assign(scene, choices, names, costs, max_models, seconds) -> SceneSelection
 
 
 def _err(sel: Selection, name: str) -> float:
-    c = sel.candidate(name)
+    try:
+        c = sel.candidate(name)
+    except KeyError:  # not a candidate of this material (e.g. an anisotropic one)
+        return float("inf")
     return float("inf") if c.message else float(c.error)
 
 
@@ -514,14 +540,11 @@ def export_scene(result: SceneSelection, gltf_path=None, mitsuba_path=None) -> l
     if mitsuba_path is not None:
         from brdf_fit.convert import mitsuba as cmi
 
-        parts = [cmi.scene_dict_to_xml(e.scene_dict, bsdf_id=c.material.name, version=None)
-                 for c, e in _export_each(result, "mitsuba", cmi.to_mitsuba, cmi.ExportError)]
-        text = ('<?xml version="1.0" encoding="utf-8"?>\n'
-                f"<!-- brdf_fit select --scene {os.path.basename(result.scene.path)}: "
-                "one bsdf per material (alpha, not roughness) -->\n"
-                '<scene version="3.0.0">\n'
-                + "".join("    " + ln + "\n" for p in parts for ln in p.strip().splitlines())
-                + "</scene>\n")
+        done = _export_each(result, "mitsuba", cmi.to_mitsuba, cmi.ExportError)
+        text = cmi.scene_document(
+            [(c.material.name, e.scene_dict) for c, e in done],
+            comment=(f"brdf_fit select, scene {os.path.basename(result.scene.path)}: one bsdf "
+                     "per material (alpha, not roughness)"))
         with open(mitsuba_path, "w", encoding="utf-8") as fh:
             fh.write(text)
         written.append(str(mitsuba_path))

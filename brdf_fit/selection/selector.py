@@ -27,6 +27,15 @@ Gaussian-likelihood forms up to a constant shared by all candidates.
 of :data:`COST_ROUNDS` timed calls), measured in the same run for every candidate, on this
 machine; only ratios between candidates mean anything elsewhere.
 
+**The cost that decides** is the committed one (issue 28: the demo chose ``ggx``, ``ggx``, then
+``ggx-conductor`` in three runs, because live timings moved 30-50%): each entry's evaluation
+cost relative to Lambert from the table ``benchmarks/bench_catalogue_cost.py`` measures and
+commits (``brdf_fit/resources/catalogue_cost.json``, float64, the minimum over 15 shuffled
+rounds), so the choice is the same from run to run and machine to machine. The live figure
+(:func:`measure_cost`, ns per evaluation on this machine, this run) is reported beside it. A
+candidate without a committed figure (a user's own entry) makes every candidate's choice cost
+the live one, and the result says so (``cost_rule``).
+
 **The choice**: the cheapest candidate whose error is within the budget (ties: fewer parameters,
 then the lower error); ``None`` when none is. Without a budget the default is stated in the
 result: twice the error of the best candidate, at least 1.5 times the noise level when the
@@ -34,11 +43,30 @@ data carry sigma (``sqrt(sum w sigma^2 cos_i^2 / sum w f^2 cos_i^2)``, the error
 would show), and at least :data:`BUDGET_FLOOR` (1%): noise-free samples of a formula (a scene's
 MTL or glTF material) would otherwise get a budget of 2e-16, which only the formula itself
 meets. The Pareto front (no other candidate both cheaper and more accurate) is reported.
+
+**A ceiling, never a multiple of a bad error.** Above an absolute error no candidate counts as
+representing the material, whatever the budget rule says: :data:`CEILING_ABOVE_NOISE` (0.05)
+above the noise level (0.05 without sigma). A default budget is capped at the ceiling, and no
+candidate above it is within budget (``ceiling=`` changes it; ``math.inf`` turns it off). When
+the best candidate exceeds it, ``represented`` is False, ``choice`` is None, and ``message``
+names the best candidate, its error and the family to try (issue 28: a 35% fit of brushed
+aluminium was "within budget" for 8 of 10 candidates under the 2 x best rule).
+
+**Anisotropy.** :func:`brdf_fit.selection.anisotropy.detect_anisotropy` tests the data for a
+second roughness width (a statistic with its threshold, in the result); when it is present and
+the candidates are the defaults (of the target, or of the package), the anisotropic candidates
+of :data:`ANISOTROPIC_CANDIDATES` join them.
+
+**Targets.** ``target="mitsuba"`` or ``"gltf"`` fits in the target's own models (registry
+entries whose ``target`` is it, plus the entries that export to it exactly:
+:data:`EXACT_EXPORTS`), so that the chosen fit is written to the renderer as it was fitted.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
+import json
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -52,10 +80,14 @@ from brdf_fit.core.validate import ParameterError
 from brdf_fit.data import GonioData
 from brdf_fit.fitting.problem import FitError
 from brdf_fit.fitting.single import fit, json_floats
+from brdf_fit.selection.anisotropy import AnisotropyTest, detect_anisotropy
+from brdf_fit.verify.catalogue import COST_FILE
 
-__all__ = ["COST_PAIRS", "COST_ROUNDS", "DEFAULT_CANDIDATES", "ERROR_DEFINITION", "FAMILIES",
-           "Candidate", "Selection", "family_candidates", "measure_cost", "radiance_error",
-           "select"]
+__all__ = ["ANISOTROPIC_CANDIDATES", "CEILING_ABOVE_NOISE", "COST_PAIRS", "COST_ROUNDS",
+           "DEFAULT_CANDIDATES", "ERROR_DEFINITION", "EXACT_EXPORTS", "FAMILIES", "TARGETS",
+           "TARGET_CANDIDATES", "Candidate", "Selection", "committed_costs", "exports_exactly",
+           "family_candidates", "measure_cost", "radiance_error", "select",
+           "target_candidates"]
 
 ERROR_DEFINITION = (
     "relative RMS error of the reflected radiance f cos(theta_i) over the data's samples and "
@@ -90,6 +122,68 @@ FAMILIES = {
     "anisotropic": ("ggx-aniso", "beckmann-aniso", "ward", "ashikhmin-shirley", "lafortune",
                     "ggx-conductor-aniso"),
 }
+
+
+#: renderers and formats a selection can target
+TARGETS = ("mitsuba", "gltf")
+#: the default candidates of a target: its native entries, cheap to costly (anisotropic ones
+#: join when the data show anisotropy: :data:`ANISOTROPIC_CANDIDATES`)
+TARGET_CANDIDATES = {
+    "mitsuba": ("lambert", "mitsuba-roughconductor", "mitsuba-roughconductor-beckmann",
+                "mitsuba-roughplastic", "mitsuba-roughplastic-beckmann"),
+    "gltf": ("lambert",),
+}
+#: the candidates added when :func:`~brdf_fit.selection.anisotropy.detect_anisotropy` finds
+#: anisotropy (key None: no target)
+ANISOTROPIC_CANDIDATES = {
+    None: ("ggx-aniso", "ggx-conductor-aniso"),
+    "mitsuba": ("mitsuba-roughconductor-aniso", "mitsuba-roughconductor-beckmann-aniso"),
+    "gltf": (),
+}
+#: entries of the literature a target holds exactly (besides the target's native entries):
+#: Lambert is Mitsuba's ``diffuse`` and glTF's dielectric with ``specularFactor`` 0; glTF's
+#: metal branch is ``ggx``; Mitsuba's ``principled`` with metallic 1 is ``ggx-separable``
+EXACT_EXPORTS = {
+    "mitsuba": ("lambert", "ggx-separable"),
+    "gltf": ("lambert", "ggx"),
+}
+#: the absolute error above the noise level beyond which no candidate represents a material
+CEILING_ABOVE_NOISE = 0.05
+
+
+def exports_exactly(name: str, target: str) -> bool:
+    """Whether registry entry ``name`` is written to ``target`` with no loss (a native entry of
+    the target, or one of :data:`EXACT_EXPORTS`)."""
+    e = registry.get(name)
+    return e.target == target or e.name in EXACT_EXPORTS.get(target, ())
+
+
+def target_candidates(target: str) -> tuple[str, ...]:
+    """The default candidates of ``target`` (:data:`TARGET_CANDIDATES`): its listed entries
+    and any other native entry of it in the registry that is not anisotropic, in that order."""
+    if target not in TARGETS:
+        raise ValueError(f"unknown target {target!r}; known: {', '.join(TARGETS)}")
+    listed = list(TARGET_CANDIDATES[target])
+    extra = [e.name for e in registry.entries() if e.target == target and e.name not in listed
+             and "anisotropic" not in e.tags and e.name not in ANISOTROPIC_CANDIDATES[target]
+             and "nonlinear" not in e.name]
+    return tuple(listed + extra)
+
+
+def anisotropic_candidates(target: str | None) -> tuple[str, ...]:
+    if target is None:
+        return ANISOTROPIC_CANDIDATES[None]
+    listed = list(ANISOTROPIC_CANDIDATES[target])
+    extra = [e.name for e in registry.entries() if e.target == target
+             and "anisotropic" in e.tags and e.name not in listed]
+    return tuple(listed + extra)
+
+
+def committed_costs() -> dict[str, float]:
+    """Each entry's committed evaluation cost relative to Lambert (module docstring), from
+    ``brdf_fit/resources/catalogue_cost.json``."""
+    doc = _cost_table()
+    return {k: float(v["eval"]) for k, v in doc.get("relative", {}).items()}
 
 
 def family_candidates(family: str) -> tuple[str, ...]:
@@ -148,6 +242,14 @@ def noise_level(data: GonioData) -> float | None:
     return float(math.sqrt(np.sum(w * (data.sigma * c) ** 2) / den)) if den > 0 else None
 
 
+@functools.cache
+def _cost_table() -> dict:
+    try:
+        return json.loads(COST_FILE.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+
+
 def _directions(n: int, seed: int = 0):
     rng = np.random.default_rng(seed)
 
@@ -161,9 +263,11 @@ def _directions(n: int, seed: int = 0):
 
 
 def measure_cost(model, n: int = COST_PAIRS, rounds: int = COST_ROUNDS) -> float:
-    """Nanoseconds per evaluation of ``model.eval`` under ``jit`` (module docstring)."""
+    """Nanoseconds per evaluation of ``model.eval`` under ``jit`` (module docstring), of the
+    model as a renderer holds it (:meth:`~brdf_fit.models.AbstractBRDF.prepared`: tables a
+    plugin builds once per material are not charged to every pair)."""
     wi, wo = (jnp.asarray(a) for a in _directions(n))
-    leaves, treedef = jax.tree_util.tree_flatten(model)
+    leaves, treedef = jax.tree_util.tree_flatten(model.prepared())
 
     @jax.jit
     def run(leaves, wi, wo):
@@ -197,6 +301,8 @@ class Candidate:
     bic: float
     converged: bool
     reduced_chi2: float | None = None
+    #: the committed cost relative to Lambert (module docstring; None: not in the table)
+    cost_rel: float | None = None
     checks: dict = dataclasses.field(default_factory=dict)
     within_budget: bool = False
     pareto: bool = False
@@ -216,6 +322,7 @@ class Candidate:
             "params": {k: tolist(v) for k, v in self.params.items()},
             "stderr": {k: json_floats(v) for k, v in self.stderr.items()},
             "error": _num(self.error), "cost_ns": _num(round(self.cost_ns, 3)),
+            "cost_rel": None if self.cost_rel is None else round(self.cost_rel, 4),
             "n_params": self.n_params, "aic": _num(self.aic), "bic": _num(self.bic),
             "within_budget": self.within_budget,
             "pareto": self.pareto, "converged": self.converged,
@@ -237,6 +344,19 @@ class Selection:
     noise_level: float | None
     n_samples: int
     seconds: float
+    #: the absolute error above which no candidate represents the material, and how it was set
+    ceiling: float = math.inf
+    ceiling_rule: str = ""
+    #: False when the best candidate exceeds the ceiling (then ``choice`` is None)
+    represented: bool = True
+    #: one line for a person: what was chosen, or why nothing was and what to try
+    message: str = ""
+    #: a family to try when nothing represents the material (None otherwise)
+    suggestion: str | None = None
+    #: how the choice's cost was read: "committed" (the table) or "live"
+    cost_rule: str = ""
+    target: str | None = None
+    anisotropy: AnisotropyTest | None = None
 
     def candidate(self, name: str) -> Candidate:
         for c in self.candidates:
@@ -246,7 +366,12 @@ class Selection:
 
     def to_dict(self) -> dict:
         return {
-            "choice": self.choice, "budget": self.budget, "budget_rule": self.budget_rule,
+            "choice": self.choice, "represented": self.represented, "message": self.message,
+            "suggestion": self.suggestion, "target": self.target,
+            "budget": self.budget, "budget_rule": self.budget_rule,
+            "ceiling": _num(self.ceiling), "ceiling_rule": self.ceiling_rule,
+            "cost_rule": self.cost_rule,
+            "anisotropy": None if self.anisotropy is None else self.anisotropy.to_dict(),
             "error_definition": self.error_definition, "noise_level": self.noise_level,
             "n_samples": self.n_samples, "seconds": round(self.seconds, 3),
             "pareto": [c.model for c in self.candidates if c.pareto],
@@ -265,87 +390,141 @@ def _pareto(cands: list[Candidate]) -> None:
             for o in cands if o is not c and not o.message)
 
 
-def select(data: GonioData, candidates: Sequence[str] | None = None, budget: float | None = None,
-           *, family: str | None = None, checks: Sequence[str] = ("reciprocity", "energy"),
-           max_steps: int = 256, multistart: int = 1, seed: int = 0,
-           costs: dict[str, float] | None = None,
-           progress: Callable[[int, int, str], None] | None = None) -> Selection:
-    """Fit each candidate (registry names; default :data:`DEFAULT_CANDIDATES`) to ``data`` in
-    the radiance error, measure its cost, and choose the cheapest within ``budget`` (module
-    docstring). ``family``: a named set of candidates instead (:data:`FAMILIES`, or ``"all"``;
-    not together with ``candidates``). ``checks``: registry checks run on each fitted model
-    (their status per check; ``()`` skips them). ``costs``: a dict of measured costs (ns per
-    evaluation) by model name, shared between calls: a model found there is not measured again,
-    a model measured here is added (a scene measures each kernel once). ``progress(done, total,
-    model)`` is called before each candidate."""
-    t_start = time.perf_counter()
+def _choose_names(candidates, family, target, data, anisotropy):
+    """``(names, test)``: the candidate names (module docstring) and the anisotropy test (None
+    when it was not run)."""
     if family is not None and candidates is not None:
         raise ValueError("give candidates or a family, not both")
+    if target is not None and target not in TARGETS:
+        raise ValueError(f"unknown target {target!r}; known: {', '.join(TARGETS)}")
+    defaulted = family is None and candidates is None
     if family is not None:
         names = list(family_candidates(family))
+    elif candidates is not None:
+        names = list(candidates)
     else:
-        names = list(DEFAULT_CANDIDATES if candidates is None else candidates)
+        names = list(DEFAULT_CANDIDATES if target is None else target_candidates(target))
     if not names:
         raise ValueError("give at least one candidate")
-    entries = [registry.get(n) for n in names]  # unknown names fail before any fit
-    if len({e.name for e in entries}) != len(entries):
+    names = [registry.get(n).name for n in names]  # unknown names fail before any fit
+    if len(set(names)) != len(names):
         raise ValueError("a candidate is listed twice")
+    if target is not None:
+        bad = [n for n in names if not exports_exactly(n, target)]
+        if bad:
+            raise ValueError(
+                f"target {target}: {', '.join(bad)} cannot be written to {target} as fitted; "
+                f"its models: {', '.join(target_candidates(target))}, "
+                f"{', '.join(anisotropic_candidates(target))} (and "
+                f"{', '.join(EXACT_EXPORTS[target])})")
+    test = None
+    if anisotropy:
+        test = detect_anisotropy(data)
+        if test.present and defaulted:
+            names += [n for n in anisotropic_candidates(target) if n not in names]
+    return names, test
+
+
+def _fit_candidate(e, plain, data, n_res, checks, max_steps, multistart, seed, costs):
+    t0 = time.perf_counter()
+    try:
+        r = fit(plain, e.name, metric="absolute", cos_weight=True, max_steps=max_steps,
+                multistart=multistart, seed=seed)
+    except (ParameterError, FitError) as exc:  # one candidate's failure loses no other
+        return Candidate(
+            model=e.name, params={}, stderr={}, error=float("inf"), cost_ns=float("nan"),
+            n_params=0, aic=float("nan"), bic=float("nan"), converged=False,
+            seconds=time.perf_counter() - t0, message=f"{type(exc).__name__}: {exc}")
+    m = _as_values(data, r.model.eval(jnp.asarray(data.wi), jnp.asarray(data.wo)))
+    rss, den = _radiance_sums(data, m)
+    err = float(math.sqrt(rss / den)) if den > 0 else float("inf")
+    k = int(sum(np.asarray(v).size for v in r.params.values()))
+    rss = max(rss, 1e-300)
+    aic = n_res * math.log(rss / n_res) + 2 * k
+    bic = n_res * math.log(rss / n_res) + k * math.log(n_res)
+    chi2 = None
+    if data.sigma is not None:
+        w = _radiance(data)[0] > 0
+        z = (m - data.value)[w] / np.maximum(data.sigma[w], 1e-300)
+        chi2 = float(np.sum(z * z) / max(z.size - k, 1))
+    status = {}
+    if checks:
+        from brdf_fit.verify.checks import run_checks
+
+        for c in run_checks(e.name, params={p: np.asarray(v) for p, v in r.params.items()},
+                            checks=checks):
+            status[c.check] = c.status
+    if costs is not None and e.name in costs:
+        cost = costs[e.name]
+    else:
+        cost = measure_cost(r.model)
+        if costs is not None:
+            costs[e.name] = cost
+    return Candidate(
+        model=e.name, params=r.params, stderr=r.stderr, error=err,
+        cost_ns=cost, n_params=k, aic=aic, bic=bic, cost_rel=committed_costs().get(e.name),
+        converged=bool(r.converged), reduced_chi2=chi2, checks=status,
+        seconds=time.perf_counter() - t0, fitted=r.model)
+
+
+#: families to suggest when nothing represents a material, by what the data showed
+_SUGGEST_ANISO = "anisotropic"
+_SUGGEST_OPEN = "all"
+
+
+def select(data: GonioData, candidates: Sequence[str] | None = None, budget: float | None = None,
+           *, family: str | None = None, target: str | None = None,
+           checks: Sequence[str] = ("reciprocity", "energy"),
+           max_steps: int = 256, multistart: int = 1, seed: int = 0,
+           costs: dict[str, float] | None = None, ceiling: float | None = None,
+           anisotropy: bool = True,
+           progress: Callable[[int, int, str], None] | None = None) -> Selection:
+    """Fit each candidate (registry names; default :data:`DEFAULT_CANDIDATES`, or the target's
+    :func:`target_candidates`) to ``data`` in the radiance error, measure its cost, and choose
+    the cheapest within ``budget`` and the ceiling (module docstring). ``family``: a named set
+    of candidates instead (:data:`FAMILIES`, or ``"all"``; not together with ``candidates``).
+    ``target``: ``"mitsuba"`` or ``"gltf"``: only models written to it with no loss.
+    ``checks``: registry checks run on each fitted model (their status per check; ``()`` skips
+    them). ``costs``: a dict of live costs (ns per evaluation) by model name, shared between
+    calls: a model found there is not measured again, a model measured here is added (a scene
+    measures each kernel once). ``ceiling``: the absolute error above which nothing represents
+    the material (default :data:`CEILING_ABOVE_NOISE` above the noise level). ``anisotropy``:
+    run the anisotropy test (and add anisotropic candidates when it finds anisotropy and the
+    candidates are the defaults). ``progress(done, total, model)`` is called before each
+    candidate."""
+    t_start = time.perf_counter()
     if budget is not None and not (math.isfinite(budget) and budget > 0):
         raise ValueError(f"budget must be a positive number, got {budget}")
+    if ceiling is not None and not (ceiling > 0):
+        raise ValueError(f"ceiling must be a positive number (or inf), got {ceiling}")
     data.validate()
+    if progress is not None:
+        progress(0, 1, "anisotropy test" if anisotropy else "")
+    names, aniso = _choose_names(candidates, family, target, data, anisotropy)
+    entries = [registry.get(n) for n in names]
     plain = dataclasses.replace(data, sigma=None)  # the selection error ignores sigma
     n_res = int(np.sum((np.ones_like(data.value) if data.weight is None else data.weight) > 0))
     out = []
     for i, e in enumerate(entries):
         if progress is not None:
             progress(i, len(entries), e.name)
-        t0 = time.perf_counter()
-        try:
-            r = fit(plain, e.name, metric="absolute", cos_weight=True, max_steps=max_steps,
-                    multistart=multistart, seed=seed)
-        except (ParameterError, FitError) as exc:  # one candidate's failure loses no other
-            out.append(Candidate(
-                model=e.name, params={}, stderr={}, error=float("inf"), cost_ns=float("nan"),
-                n_params=0, aic=float("nan"), bic=float("nan"), converged=False,
-                seconds=time.perf_counter() - t0, message=f"{type(exc).__name__}: {exc}"))
-            continue
-        m = _as_values(data, r.model.eval(jnp.asarray(data.wi), jnp.asarray(data.wo)))
-        rss, den = _radiance_sums(data, m)
-        err = float(math.sqrt(rss / den)) if den > 0 else float("inf")
-        k = int(sum(np.asarray(v).size for v in r.params.values()))
-        rss = max(rss, 1e-300)
-        aic = n_res * math.log(rss / n_res) + 2 * k
-        bic = n_res * math.log(rss / n_res) + k * math.log(n_res)
-        chi2 = None
-        if data.sigma is not None:
-            w = _radiance(data)[0] > 0
-            z = (m - data.value)[w] / np.maximum(data.sigma[w], 1e-300)
-            chi2 = float(np.sum(z * z) / max(z.size - k, 1))
-        status = {}
-        if checks:
-            from brdf_fit.verify.checks import run_checks
-
-            for c in run_checks(e.name, params={p: np.asarray(v) for p, v in r.params.items()},
-                                checks=checks):
-                status[c.check] = c.status
-        if costs is not None and e.name in costs:
-            cost = costs[e.name]
-        else:
-            cost = measure_cost(r.model)
-            if costs is not None:
-                costs[e.name] = cost
-        out.append(Candidate(
-            model=e.name, params=r.params, stderr=r.stderr, error=err,
-            cost_ns=cost, n_params=k, aic=aic, bic=bic,
-            converged=bool(r.converged), reduced_chi2=chi2, checks=status,
-            seconds=time.perf_counter() - t0, fitted=r.model))
+        out.append(_fit_candidate(e, plain, data, n_res, checks, max_steps, multistart, seed,
+                                  costs))
     if progress is not None:
         progress(len(entries), len(entries), "done")
     noise = noise_level(data)
     if all(c.message for c in out):
         raise FitError("no candidate could be fitted: " + "; ".join(
             f"{c.model}: {c.message}" for c in out))
-    best = min(c.error for c in out if not c.message)
+    best_c = min((c for c in out if not c.message), key=lambda c: c.error)
+    best = best_c.error
+    if ceiling is None:
+        ceiling = CEILING_ABOVE_NOISE + (noise or 0.0)
+        ceiling_rule = (f"default: {CEILING_ABOVE_NOISE:g} above the noise level "
+                        f"({noise:.4g})" if noise is not None else
+                        f"default: {CEILING_ABOVE_NOISE:g} (no sigma: noise level unknown)")
+    else:
+        ceiling_rule = "given"
     if budget is None:
         budget = BUDGET_FACTOR_BEST * best
         rule = f"default: {BUDGET_FACTOR_BEST:g} x the best candidate's error ({best:.4g})"
@@ -358,15 +537,50 @@ def select(data: GonioData, candidates: Sequence[str] | None = None, budget: flo
             rule = (f"default: the floor {BUDGET_FLOOR:g}, above {BUDGET_FACTOR_BEST:g} x the "
                     f"best error ({best:.4g})" + ("" if noise is None else
                                                   f" and {BUDGET_FACTOR_NOISE:g} x the noise"))
+        if budget > ceiling:
+            budget = ceiling
+            rule = f"the ceiling ({ceiling:.4g}), below {rule}"
     else:
         rule = "given"
     for c in out:
-        c.within_budget = bool(c.error <= budget)
+        c.within_budget = bool(c.error <= budget and c.error <= ceiling)
     _pareto(out)
-    out.sort(key=lambda c: (bool(c.message), c.cost_ns if not c.message else 0.0, c.n_params,
-                            c.error))
+    fitted = [c for c in out if not c.message]
+    if all(c.cost_rel is not None for c in fitted):
+        cost_rule = ("committed: each entry's cost relative to Lambert from "
+                     "brdf_fit/resources/catalogue_cost.json (benchmarks/bench_catalogue_cost.py)"
+                     "; ns/eval is this run's live figure")
+        cost_key = {c.model: c.cost_rel for c in fitted}
+    else:
+        missing = [c.model for c in fitted if c.cost_rel is None]
+        cost_rule = ("live: " + ", ".join(missing) + " not in the committed cost table, so "
+                     "every candidate is compared by this run's measured ns/eval")
+        cost_key = {c.model: c.cost_ns for c in fitted}
+    out.sort(key=lambda c: (bool(c.message), cost_key.get(c.model, 0.0), c.n_params, c.error))
     ok = [c for c in out if c.within_budget]
-    choice = min(ok, key=lambda c: (c.cost_ns, c.n_params, c.error)).model if ok else None
+    choice = min(ok, key=lambda c: (cost_key[c.model], c.n_params, c.error)).model if ok else None
+    represented = bool(best <= ceiling)
+    suggestion = None
+    if not represented:
+        suggestion = (_SUGGEST_ANISO if aniso is not None and aniso.present
+                      and "anisotropic" not in registry.get(best_c.model).tags
+                      else _SUGGEST_OPEN)
+        where = "" if target is None else f" of target {target}"
+        message = (f"no candidate{where} represents this material: the best, {best_c.model}, "
+                   f"leaves a radiance error of {best:.3g}, above the ceiling {ceiling:.3g}; "
+                   f"try --family {suggestion}" + (
+                       " (the data show anisotropy)" if suggestion == _SUGGEST_ANISO else
+                       " (every registry model)"))
+        choice = None
+    elif choice is None:
+        message = f"no candidate is within the budget {budget:.4g}"
+    else:
+        ch = next(c for c in out if c.model == choice)
+        message = (f"choice: {choice}, error {ch.error:.4g} (budget {budget:.4g}), the cheapest "
+                   f"within budget by the {cost_rule.split(':')[0]} cost")
     return Selection(choice=choice, budget=float(budget), budget_rule=rule,
                      error_definition=ERROR_DEFINITION, candidates=out, noise_level=noise,
-                     n_samples=data.n, seconds=time.perf_counter() - t_start)
+                     n_samples=data.n, seconds=time.perf_counter() - t_start,
+                     ceiling=float(ceiling), ceiling_rule=ceiling_rule,
+                     represented=represented, message=message, suggestion=suggestion,
+                     cost_rule=cost_rule, target=target, anisotropy=aniso)
