@@ -63,6 +63,8 @@ from brdf_fit.core.validate import ParameterError
 from brdf_fit.data import DataError, GonioData
 from brdf_fit.fitting.problem import FitError
 from brdf_fit.io.mtl import MtlError, read_mtl
+from brdf_fit.selection.anisotropy import THRESHOLD as ANISO_THRESHOLD
+from brdf_fit.selection.anisotropy import AnisotropyTest
 from brdf_fit.selection.selector import (
     DEFAULT_CANDIDATES,
     TARGETS,
@@ -110,6 +112,9 @@ class SceneMaterial:
     line: int
     data: GonioData
     notes: list[str] = dataclasses.field(default_factory=list)
+    #: whether the material's own formula is anisotropic (None: measured data, unknown; the
+    #: selection then tests the data for it)
+    anisotropic: bool | None = None
 
 
 @dataclasses.dataclass
@@ -233,7 +238,8 @@ def _materials_of(entry: dict, path: str, line: int, base: str, geom, skip_bad: 
             raise SceneError(path, line, f"model {src}: {exc}") from None
         vals = m.eval(jnp.asarray(wi), jnp.asarray(wo))
         return [SceneMaterial(name or e.name, kind, e.name, line,
-                              _synth(vals, wi, wo, f"registry {e.name}"))], []
+                              _synth(vals, wi, wo, f"registry {e.name}"),
+                              anisotropic=bool(m.is_anisotropic()))], []
     file = _resolve(base, src)
     out, bad = [], []
     if kind == "mtl":
@@ -248,10 +254,12 @@ def _materials_of(entry: dict, path: str, line: int, base: str, geom, skip_bad: 
         for n in _pick(list(by), entry.get("materials"), path, line, file):
             mm = by[n]
             meaning = cmtl.mtl_model(mm)
-            vals = meaning.build().eval(jnp.asarray(wi), jnp.asarray(wo))
+            built = meaning.build()
+            vals = built.eval(jnp.asarray(wi), jnp.asarray(wo))
             out.append(SceneMaterial(n, kind, mm.where, line,
                                      _synth(vals, wi, wo, f"MTL {mm.where} as {meaning.name}"),
-                                     list(meaning.notes)))
+                                     list(meaning.notes),
+                                     anisotropic=bool(built.is_anisotropic())))
         return out, bad
     # gltf
     try:
@@ -262,7 +270,8 @@ def _materials_of(entry: dict, path: str, line: int, base: str, geom, skip_bad: 
     for n in _pick(list(by), entry.get("materials"), path, line, file):
         vals = cgltf.appendix_b_eval(by[n], jnp.asarray(wi), jnp.asarray(wo))
         out.append(SceneMaterial(n, kind, f"{file}#{n}", line,
-                                 _synth(vals, wi, wo, f"glTF {file} material {n}")))
+                                 _synth(vals, wi, wo, f"glTF {file} material {n}"),
+                                 anisotropic=False))  # read as Appendix B: isotropic
     return out, bad
 
 
@@ -432,9 +441,13 @@ def select_scene(scene: Scene, candidates: Sequence[str] | None = None,
         def sub(done, _n, model, i=i, mat=mat):
             if progress is not None:
                 progress(i * n_cand + min(done, n_cand), total, f"{mat.name}: {model}")
+        known = (True if mat.anisotropic is None else AnisotropyTest(
+            statistic=None, threshold=ANISO_THRESHOLD, present=mat.anisotropic,
+            measurable=True, note=("anisotropic" if mat.anisotropic else "isotropic")
+            + f" by its formula ({mat.kind} material: no test needed)"))
         try:
             sel = select(mat.data, names, budget, target=target, checks=checks, progress=sub,
-                         costs=costs, ceiling=ceiling)
+                         costs=costs, ceiling=ceiling, anisotropy=known)
         except (FitError, ParameterError, ValueError) as exc:
             err = SceneError(scene.path, mat.line, f"material {mat.name!r}: {exc}", mat.name)
             if not skip_bad:

@@ -418,8 +418,11 @@ def _choose_names(candidates, family, target, data, anisotropy):
                 f"{', '.join(anisotropic_candidates(target))} (and "
                 f"{', '.join(EXACT_EXPORTS[target])})")
     test = None
-    if anisotropy:
+    if isinstance(anisotropy, AnisotropyTest):
+        test = anisotropy
+    elif anisotropy:
         test = detect_anisotropy(data)
+    if test is not None:
         if test.present and defaulted:
             names += [n for n in anisotropic_candidates(target) if n not in names]
     return names, test
@@ -477,7 +480,7 @@ def select(data: GonioData, candidates: Sequence[str] | None = None, budget: flo
            checks: Sequence[str] = ("reciprocity", "energy"),
            max_steps: int = 256, multistart: int = 1, seed: int = 0,
            costs: dict[str, float] | None = None, ceiling: float | None = None,
-           anisotropy: bool = True,
+           anisotropy: bool | AnisotropyTest = True,
            progress: Callable[[int, int, str], None] | None = None) -> Selection:
     """Fit each candidate (registry names; default :data:`DEFAULT_CANDIDATES`, or the target's
     :func:`target_candidates`) to ``data`` in the radiance error, measure its cost, and choose
@@ -490,8 +493,9 @@ def select(data: GonioData, candidates: Sequence[str] | None = None, budget: flo
     measures each kernel once). ``ceiling``: the absolute error above which nothing represents
     the material (default :data:`CEILING_ABOVE_NOISE` above the noise level). ``anisotropy``:
     run the anisotropy test (and add anisotropic candidates when it finds anisotropy and the
-    candidates are the defaults). ``progress(done, total, model)`` is called before each
-    candidate."""
+    candidates are the defaults); an :class:`~brdf_fit.selection.anisotropy.AnisotropyTest`
+    is taken as the answer (a material whose formula is known needs no test).
+    ``progress(done, total, model)`` is called before each candidate."""
     t_start = time.perf_counter()
     if budget is not None and not (math.isfinite(budget) and budget > 0):
         raise ValueError(f"budget must be a positive number, got {budget}")
@@ -499,7 +503,7 @@ def select(data: GonioData, candidates: Sequence[str] | None = None, budget: flo
         raise ValueError(f"ceiling must be a positive number (or inf), got {ceiling}")
     data.validate()
     if progress is not None:
-        progress(0, 1, "anisotropy test" if anisotropy else "")
+        progress(0, 1, "anisotropy test" if anisotropy is True else "")
     names, aniso = _choose_names(candidates, family, target, data, anisotropy)
     entries = [registry.get(n) for n in names]
     plain = dataclasses.replace(data, sigma=None)  # the selection error ignores sigma
