@@ -48,6 +48,7 @@ from brdf_fit.models import (
     lewis,
     minnaert,
     mitsuba,
+    mitsuba_principled,
     neumann,
     oren_nayar,
     phong,
@@ -457,7 +458,8 @@ for _module in FAMILY_MODULES:
 
 #: renderer-native entries (``Entry.target``, tag ``"native"``): transcriptions of what a
 #: renderer or format itself computes, so that a fit in one exports to it with no loss
-NATIVE_MODULES = (mitsuba,)
+NATIVE_MODULES = (mitsuba, mitsuba_principled)
 
-for _entry in mitsuba.registry_entries(_gold_eta, _gold_k):
+for _entry in (*mitsuba.registry_entries(_gold_eta, _gold_k),
+               *mitsuba_principled.registry_entries()):
     register(_entry)

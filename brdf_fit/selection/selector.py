@@ -130,14 +130,16 @@ TARGETS = ("mitsuba", "gltf")
 #: join when the data show anisotropy: :data:`ANISOTROPIC_CANDIDATES`)
 TARGET_CANDIDATES = {
     "mitsuba": ("lambert", "mitsuba-roughconductor", "mitsuba-roughconductor-beckmann",
-                "mitsuba-roughplastic", "mitsuba-roughplastic-beckmann"),
+                "mitsuba-roughplastic", "mitsuba-roughplastic-beckmann",
+                "mitsuba-principled"),
     "gltf": ("lambert",),
 }
 #: the candidates added when :func:`~brdf_fit.selection.anisotropy.detect_anisotropy` finds
 #: anisotropy (key None: no target)
 ANISOTROPIC_CANDIDATES = {
     None: ("ggx-aniso", "ggx-conductor-aniso"),
-    "mitsuba": ("mitsuba-roughconductor-aniso", "mitsuba-roughconductor-beckmann-aniso"),
+    "mitsuba": ("mitsuba-roughconductor-aniso", "mitsuba-roughconductor-beckmann-aniso",
+                "mitsuba-principled-aniso"),
     "gltf": (),
 }
 #: entries of the literature a target holds exactly (besides the target's native entries):
@@ -159,24 +161,15 @@ def exports_exactly(name: str, target: str) -> bool:
 
 
 def target_candidates(target: str) -> tuple[str, ...]:
-    """The default candidates of ``target`` (:data:`TARGET_CANDIDATES`): its listed entries
-    and any other native entry of it in the registry that is not anisotropic, in that order."""
+    """The default candidates of ``target`` (:data:`TARGET_CANDIDATES`)."""
     if target not in TARGETS:
         raise ValueError(f"unknown target {target!r}; known: {', '.join(TARGETS)}")
-    listed = list(TARGET_CANDIDATES[target])
-    extra = [e.name for e in registry.entries() if e.target == target and e.name not in listed
-             and "anisotropic" not in e.tags and e.name not in ANISOTROPIC_CANDIDATES[target]
-             and "nonlinear" not in e.name]
-    return tuple(listed + extra)
+    return TARGET_CANDIDATES[target]
 
 
 def anisotropic_candidates(target: str | None) -> tuple[str, ...]:
-    if target is None:
-        return ANISOTROPIC_CANDIDATES[None]
-    listed = list(ANISOTROPIC_CANDIDATES[target])
-    extra = [e.name for e in registry.entries() if e.target == target
-             and "anisotropic" in e.tags and e.name not in listed]
-    return tuple(listed + extra)
+    """The candidates added when the data show anisotropy (:data:`ANISOTROPIC_CANDIDATES`)."""
+    return ANISOTROPIC_CANDIDATES[target]
 
 
 def committed_costs() -> dict[str, float]:

@@ -253,6 +253,27 @@ def test_every_exported_document_validates(fitted, validator):
     assert r == float(f"{math.sqrt(0.3):.{DOCUMENT_DIGITS}g}")
 
 
+def test_the_khronos_validator_finds_no_error(fitted, tmp_path):
+    """The Khronos glTF validator (npm gltf-validator, run with node: tests/_khronos.py) on a
+    written document, and on a broken one (a negative control: it must find that error)."""
+    from _khronos import khronos_validate
+
+    from brdf_fit.convert.gltf import write_gltf
+
+    path = tmp_path / "m.gltf"
+    write_gltf(path, [to_gltf("ggx"), to_gltf("lambert"), *fitted.values()])
+    rep = khronos_validate(path)
+    if rep is None:
+        pytest.skip("node/npm not available here: the Khronos validator cannot run (the JSON "
+                    "schema test above still checks the document)")
+    assert rep["numErrors"] == 0, rep["messages"]
+    doc = json.loads(path.read_text())
+    doc["materials"][0]["pbrMetallicRoughness"]["roughnessFactor"] = 2.0
+    bad = tmp_path / "bad.gltf"
+    bad.write_text(json.dumps(doc))
+    assert khronos_validate(bad)["numErrors"] >= 1
+
+
 @pytest.mark.parametrize("breakage", ["roughness", "base3", "no_version", "spec_factor", "ior",
                                       "version_pattern", "alpha_mode"])
 def test_broken_documents_fail_the_schema(validator, breakage):
