@@ -39,6 +39,7 @@ from brdf_fit.models import (
     ashikhmin_shirley,
     beard_maxwell,
     cook_torrance_1982,
+    gltf_pbr,
     granier_heidrich,
     hanrahan_krueger,
     htsg,
@@ -458,8 +459,8 @@ for _module in FAMILY_MODULES:
 
 #: renderer-native entries (``Entry.target``, tag ``"native"``): transcriptions of what a
 #: renderer or format itself computes, so that a fit in one exports to it with no loss
-NATIVE_MODULES = (mitsuba, mitsuba_principled)
+NATIVE_MODULES = (mitsuba, mitsuba_principled, gltf_pbr)
 
 for _entry in (*mitsuba.registry_entries(_gold_eta, _gold_k),
-               *mitsuba_principled.registry_entries()):
+               *mitsuba_principled.registry_entries(), *gltf_pbr.registry_entries()):
     register(_entry)

@@ -81,6 +81,7 @@ from brdf_fit.convert.phong_to_ggx import GRID, LOBE_N_PHI, LOBE_S, LOBE_THETA_I
 from brdf_fit.core.numerics import ALPHA_MIN, INV_PI
 from brdf_fit.core.params import UnknownModelError
 from brdf_fit.core.validate import ParameterError
+from brdf_fit.models.gltf_pbr import from_gltf_material
 
 __all__ = [
     "ExportError",
@@ -102,8 +103,10 @@ __all__ = [
 
 ERROR_MEASURE = ("relative RMS radiance error sqrt(sum ((f_src - f_export) cos_i)^2 / "
                  "sum (f_src cos_i)^2) over the geometry, all channels")
+#: extensions evaluated by the native model (brdf_fit.models.gltf_pbr) rather than _appendix_b
+_LAYER_EXTENSIONS = ("KHR_materials_anisotropy", "KHR_materials_sheen", "KHR_materials_clearcoat")
 #: material extensions this module writes and reads (anything else required is refused)
-SUPPORTED_EXTENSIONS = ("KHR_materials_ior", "KHR_materials_specular")
+SUPPORTED_EXTENSIONS = ("KHR_materials_ior", "KHR_materials_specular", *_LAYER_EXTENSIONS)
 #: significant digits of the floats :func:`gltf_document` writes (a relative change <= 5e-7)
 DOCUMENT_DIGITS = 6
 #: models refused by tag, with the reason
@@ -203,6 +206,11 @@ def appendix_b_eval(material: dict, wi, wo):
     ``(N, 3)`` RGB values of f in 1/sr, without the cosine (module docstring)."""
     wi = jnp.asarray(wi)
     wo = jnp.asarray(wo)
+    ext = material.get("extensions", {}) or {}
+    if any(e in ext for e in _LAYER_EXTENSIONS):
+        # the layered extensions: the native model of brdf_fit.models.gltf_pbr (held to a
+        # NumPy transcription of the extensions' texts in tests/models/test_gltf_pbr.py)
+        return from_gltf_material(material).eval(wi, wo)
     return _appendix_b(*_material_arrays(material), wi, wo)
 
 
@@ -410,7 +418,13 @@ def to_gltf(model_name: str, params: dict | None = None, *, name: str | None = N
                               f"of equal shape, got {wi.shape} and {wo.shape}")
         text = f"user geometry: {wi.shape[0]} direction pairs"
     f_src = source_rgb(model, wi, wo, entry.name)
-    if entry.name == "ggx":
+    if entry.target == "gltf":
+        mat, ext = entry.native_export(full)
+        mat = {**mat, "name": name}
+        method = "exact"
+        note = (f"native entry: {entry.name} is the glTF material model itself "
+                "(brdf_fit.models.gltf_pbr), every parameter written as fitted")
+    elif entry.name == "ggx":
         f0 = np.broadcast_to(full["f0"], (3,))
         mat, ext = _material(name, f0, 1.0, math.sqrt(float(full["alpha"])))
         method = "exact"

@@ -47,29 +47,40 @@ Friendly Microfacet Sheen BRDF", SIGGRAPH 2017, the "Charlie" sheen)::
     r         = max(sheenRoughness^2, ALPHA_MIN)           (the extension's alphaG = roughness^2)
     D_s(H)    = (2 + 1/r) (sin^2 theta_H)^(1/(2 r)) / (2 pi),   sin^2 theta_H = (H.x)^2 + (H.y)^2
                                                                    (Estevez & Kulla, eq. 2)
-    Lambda(mu) = exp(l(mu))                  mu < 0.5            (Estevez & Kulla, section 3,
-               = exp(2 l(0.5) - l(1 - mu))   mu >= 0.5            the fitted Lambda and its
-    l(x)      = a/(1 + b x^c) + d x + e,  (a..e) = p_1 + (p_0 - p_1)(1 - r)^2   extension)
+    Lambda(mu) = exp(l(mu))                  mu < 0.5            (Estevez & Kulla's fitted
+               = exp(2 l(0.5) - l(1 - mu))   mu >= 0.5            Lambda, as the extension's
+    l(x)      = a/(1 + b x^c) + d x + e,  (a..e) = p_1 + (p_0 - p_1)(1 - r)^2   "Sheen visibility")
     f_sheen   = sheenColor D_s / ((1 + Lambda(mu_o) + Lambda(mu_i)) 4 mu_o mu_i)
     f         = f_sheen + material s,
     s         = max(0, min(1 - max3(sheenColor) E(mu_o), 1 - max3(sheenColor) E(mu_i)))
+              = max(0, 1 - max3(sheenColor) max(E(mu_o), E(mu_i)))
                                                        (the extension's "Albedo-scaling technique")
 
 with ``p_0``, ``p_1`` the fitted parameters at ``r = 0`` and ``r = 1`` (:data:`CHARLIE_L_R0`,
 :data:`CHARLIE_L_R1`; the paper's table, as the extension's ``l(x, alphaG)`` writes them), no
-sheen Fresnel (the extension: ``F = 1``), no terminator softening (the paper's optional
-``Lambda^(1 + 2 (1 - mu)^8)``: the extension does not use it), and no clamp of the visibility at
+sheen Fresnel (the extension: ``F = 1``), no terminator softening (the paper's optional change
+of ``Lambda`` near the horizon: the extension does not use it), and no clamp of the visibility at
 1 (some viewers clamp it in their shaders; the extension's formula has none). ``E(mu, r)`` is the
 directional albedo of the sheen lobe with ``sheenColor = 1`` (the extension's ``E(x)`` for the
 "Charlie" visibility), looked up in the packaged table :data:`SHEEN_TABLE_FILE` written by
 ``python -m brdf_fit.tables.sheen`` (:func:`sheen_albedo`: cubic in ``log10(sheenRoughness)`` and
-``log10(mu)``, accuracy in the table's metadata and :data:`SHEEN_TABLE_ERROR`). The extension's
+``log10(mu)``, accuracy in the table's metadata and :data:`SHEEN_TABLE_ERROR`: 2.5e-5 absolute,
+largest next to ``mu = 0.5``, where ``Lambda``'s two branches join with a continuous first
+derivative only, and on the steep fall of ``E`` at small sheen roughness). The extension's
 formula lets ``s`` go negative where ``max3(sheenColor) E > 1``: the fitted ``Lambda`` is finite
 at ``mu = 0`` (``exp(a + e)``), so ``E`` exceeds 1 at grazing views for small sheen roughness
 (measured: ``E = 1.15`` at ``mu = 0.01`` for ``sheenRoughness = 0.2``, 5.0 for 0.01, and
 ``E ~ 1/(mu Lambda(0))`` diverges as ``mu -> 0``); ``s`` is clamped at 0 there so that ``f`` stays
 non-negative (the only departure from the extension's formula; the sheen layer alone then
 reflects more than it receives, which is the Charlie model's, not ours).
+
+**Energy.** The model is the specification's sample implementation (Appendix B.3, informative),
+so it inherits what B.3.6 ("Coupling Diffuse and Specular Reflection") says of ``fresnel_mix``:
+it is not energy conserving. Measured
+(:func:`brdf_fit.verify.albedo.directional_albedo`): a white dielectric (``baseColor = 1``,
+``metallic = 0``) reflects up to 1.38 at ``mu_o = 0.001`` for ``roughness = 0.3`` and 1.018 for
+``roughness = 1``; the sheen lobe alone up to 2.1 at ``sheenRoughness = 0.1`` (the Charlie
+``Lambda``, above). The registry defaults (``baseColor = (0.8, 0.6, 0.4)``) stay below 1.
 
 **Clearcoat** (KHR_materials_clearcoat, "Clearcoat" and "Implementation", ``fresnel_coat`` with
 ``ior = 1.5``, the clearcoat normal = ``N``)::
@@ -87,11 +98,12 @@ sheen"; KHR_materials_clearcoat: on top of "the glTF 2.0 Metallic-Roughness mate
 Epsilons (each named, each with its reason):
 
 ``ALPHA_MIN`` (1e-4, :mod:`brdf_fit.core.numerics`)
-    Appendix B: "alpha = 0 must not be evaluated with these formulas". Every GGX width and the
-    sheen ``r`` are clamped below at ALPHA_MIN, as the package's microfacet models and
-    :func:`brdf_fit.convert.gltf.appendix_b_eval` do (a roughness below 0.01 evaluates as 0.01;
-    the gradient in it is 0 there). The specification's own defaults ``roughness = 0`` of the
-    clearcoat and the sheen are therefore evaluated at 0.01.
+    Appendix B.2.3 ("Microfacet Surfaces") makes ``alpha = 0`` a perfectly specular surface,
+    where B.3.2's ``D`` is ``0/0`` at ``N.H = 1`` (a delta), and the sheen's ``1/r`` is infinite.
+    Every GGX width and the sheen ``r`` are clamped below at ALPHA_MIN, as the package's
+    microfacet models and :func:`brdf_fit.convert.gltf.appendix_b_eval` do (a roughness below
+    0.01 evaluates as 0.01; the gradient in it is 0 there). The specification's own defaults
+    ``roughness = 0`` of the clearcoat and the sheen are therefore evaluated at 0.01.
 :data:`SHEEN_TABLE_MU_MIN` (1e-6)
     The sheen albedo table starts at ``mu = 1e-6``; below, ``E(1e-6)`` is used (``E`` diverges
     as ``mu -> 0``, see above; directions within 1e-6 of the horizon carry a negligible part of
@@ -116,7 +128,8 @@ the cosine hemisphere (diffuse), the uniform hemisphere (sheen: a lobe at grazin
 visible normals of ``(a_t, a_b)`` in the rotated frame (Dupuy & Benyoub 2023, spherical caps;
 :meth:`~brdf_fit.core.microfacet.GGX.sample_visible`) and those of ``alpha_c``, reflected
 (``D G1(V) (V.H)/mu_o`` times ``1/(4 V.H)``, Walter et al. 2007, eq. 14). The probabilities follow
-each lobe's Schlick estimate at ``mu_o`` (:meth:`GltfPBR.lobe_probabilities`). A reflection below
+each lobe's Schlick estimate at ``mu_o`` and a fixed guess of the sheen albedo
+(:meth:`GltfPBR.lobe_probabilities`). A reflection below
 the horizon is a failed sample (pdf 0, weight 0).
 """
 
@@ -155,6 +168,7 @@ __all__ = [
     "GLTF_DEFAULTS",
     "GltfPBR",
     "P_DEFENSIVE",
+    "SHEEN_ALBEDO_GUESS",
     "SHEEN_ROUGHNESS_MIN",
     "SHEEN_TABLE_ERROR",
     "SHEEN_TABLE_FILE",
@@ -183,8 +197,9 @@ SHEEN_ROUGHNESS_MIN = math.sqrt(ALPHA_MIN)
 #: The sheen albedo table's smallest ``mu`` (module docstring, epsilons).
 SHEEN_TABLE_MU_MIN = 1e-6
 #: Endpoint nodes of the sheen albedo table: ``log10(sheenRoughness)`` in ``[-2, 0]`` and
-#: ``log10(mu)`` in ``[-6, 0]`` (64 and 32 nodes per decade; the cubic lookup's error on a finer
-#: grid was measured 16x smaller, :mod:`brdf_fit.tables.sheen`).
+#: ``log10(mu)`` in ``[-6, 0]`` (64 and 32 nodes per decade). Measured cubic-lookup errors at
+#: half this density: 2.1e-4 (97 ``mu`` nodes, sheenRoughness 0.01) and 1.4e-4 (65 roughness
+#: nodes); at this one 1.3e-5 and 6.7e-6 (the h^4 of a cubic).
 SHEEN_TABLE_N_ROUGHNESS = 129
 SHEEN_TABLE_N_MU = 193
 #: The packaged ``E(mu, sheenRoughness)`` table (``brdf_fit/resources/tables``), written by
@@ -196,6 +211,10 @@ SHEEN_TABLE_FILE = "charlie_sheen_E.npz"
 SHEEN_TABLE_ERROR = 3e-5
 #: The cosine lobe's floor probability in :meth:`GltfPBR.sample` (module docstring).
 P_DEFENSIVE = 0.05
+#: The sheen albedo the lobe probabilities assume (:meth:`GltfPBR.lobe_probabilities`): ``E`` of
+#: the table is 0.2-0.9 over most views and roughnesses; only the sampling efficiency depends on
+#: it, never the pdf's exactness.
+SHEEN_ALBEDO_GUESS = 0.5
 
 #: The specification's defaults of every parameter (the extensions off); also the class's.
 GLTF_DEFAULTS = {
@@ -243,7 +262,8 @@ def _charlie_parts(hx, hy, iz, oz, sheen_roughness):
     inv_r = 1.0 / r
     s2 = hx * hx + hy * hy  # sin^2(theta_H) without the cancellation of 1 - (N.H)^2
     D = (2.0 + inv_r) * INV_TWO_PI * safe_pow(s2, 0.5 * inv_r)
-    g = 1.0 + charlie_lambda(oz, r) + charlie_lambda(iz, r)
+    lam = charlie_lambda(jnp.stack(jnp.broadcast_arrays(oz, iz)), r)  # one program for both
+    g = 1.0 + lam[0] + lam[1]
     # 1/(4 mu_o mu_i) as a product of reciprocals (their product underflows nothing at 1e-7)
     return D * (safe_div(0.5, iz) * safe_div(0.5, oz)) / g
 
@@ -264,43 +284,67 @@ def _packaged_table() -> Table:
 
 
 @functools.lru_cache(maxsize=4)
-def _typed_table(dtype_name: str) -> Table:
+def _typed_tables(dtype_name: str) -> tuple[Table, Table]:
+    """The packaged table in ``dtype``, and the same values as a 1-D table over the roughness
+    axis whose channels are the ``mu`` nodes (:func:`sheen_albedo`)."""
     t = _packaged_table()
-    return Table(np.asarray(t.values, np.dtype(dtype_name)), t.axes, t.channels)
+    values = np.asarray(t.values, np.dtype(dtype_name))
+    ax_r, ax_mu = t.axes
+    rows = Table(values[..., 0], (ax_r,), tuple(f"mu_{k}" for k in range(ax_mu.n)))
+    return Table(values, t.axes, t.channels), rows
 
 
 def sheen_albedo(mu, sheen_roughness):
     """``E(mu, sheenRoughness)``: the directional albedo of :func:`charlie_sheen`, looked up in
     the packaged table (cubic in ``log10(sheenRoughness)`` on ``[log10 SHEEN_ROUGHNESS_MIN, 0]``
     and in ``log10(mu)`` on ``[log10 SHEEN_TABLE_MU_MIN, 0]``, both clamped to the grid).
-    Differentiable in both; in ``mu``'s float dtype."""
+    Differentiable in both; in ``mu``'s float dtype.
+
+    The tensor-product cubic of :meth:`~brdf_fit.core.table.Table.lookup` is separable: for one
+    (scalar) roughness, as in a model, the 4 table rows around it are interpolated once into a
+    column over the ``mu`` nodes, which each direction then interpolates (4 gathers per
+    direction instead of 16: the same values to rounding, and half the compilation time under
+    ``grad``, measured)."""
     mu = jnp.asarray(mu)
     dt = mu.dtype if jnp.issubdtype(mu.dtype, jnp.floating) else jnp.result_type(float)
-    table = _typed_table(jnp.dtype(dt).name)
+    full, rows = _typed_tables(jnp.dtype(dt).name)
     sr = jnp.asarray(sheen_roughness).astype(dt)
     x_r = jnp.log10(jnp.maximum(sr, SHEEN_ROUGHNESS_MIN))
     x_mu = jnp.log10(jnp.maximum(mu.astype(dt), SHEEN_TABLE_MU_MIN))
-    return table.lookup(x_r, x_mu, order=3)[..., 0]
+    if x_r.ndim:
+        return full.lookup(x_r, x_mu, order=3)[..., 0]
+    column = rows.lookup(x_r, order=3)
+    return Table(column[:, None], full.axes[1:], ("E",)).lookup(x_mu, order=3)[..., 0]
 
 
 # ----------------------------------------------------------------------------- the model
 
 
 def _rotate(w, c, s):
-    """Components of ``w`` (..., 3) in the anisotropy frame ``t = (c, s, 0)``, ``b = (-s, c, 0)``."""
+    """Components of ``w`` (..., 3) in the frame ``t = (c, s, 0)``, ``b = (-s, c, 0)``."""
     x, y, z = split(w)
     return join(c * x + s * y, c * y - s * x, z)
 
 
+def _channel_max(x):
+    """The largest entry along the last (channel) axis, as pairwise ``jnp.maximum``. The
+    derivative of ``jnp.max`` divides by the count of entries that compare equal to the maximum;
+    compiled at LLVM optimisation level 0 it gave NaN gradients of the pdf in ``base_color``,
+    ``ior`` and the specular parameters at ordinary directions (measured; eager and the default
+    optimisation level were finite), consistent with the entries and the maximum being rounded
+    differently in two fusions. ``maximum``'s derivative is a select: nothing to divide."""
+    return functools.reduce(jnp.maximum, [x[..., k] for k in range(x.shape[-1])])
+
+
 def _cmax(x, ch):
     """The largest channel of a per-direction quantity (itself without a channel axis)."""
-    return x if ch is None else jnp.max(x, axis=-1)
+    return x if ch is None else _channel_max(x)
 
 
 def _max3(colour):
     """``max3`` of a colour parameter (a scalar as it is: ``jnp.max`` would make a weakly typed
     Python float a float64 array, which strict promotion refuses next to float32 values)."""
-    return colour if jnp.ndim(colour) == 0 else jnp.max(colour)
+    return colour if jnp.ndim(colour) == 0 else _channel_max(colour)
 
 
 class GltfPBR(AbstractBRDF):
@@ -371,7 +415,12 @@ class GltfPBR(AbstractBRDF):
         return GGX(self.clearcoat_alpha())
 
     def _frame(self):
-        return jnp.cos(self.anisotropy_rotation), jnp.sin(self.anisotropy_rotation)
+        """``(cos, sin)`` of the anisotropy rotation; the identity where the strength is 0 (the
+        BRDF is isotropic then, and a rotation would only add rounding: the export, which
+        omits an inactive extension, stays exact to the bit)."""
+        on = self.anisotropy_strength > 0
+        return (jnp.where(on, jnp.cos(self.anisotropy_rotation), 1.0),
+                jnp.where(on, jnp.sin(self.anisotropy_rotation), 0.0))
 
     def dielectric_f0(self):
         """``min(((ior - 1)/(ior + 1))^2 specularColor, 1) specular`` (KHR_materials_specular
@@ -413,8 +462,8 @@ class GltfPBR(AbstractBRDF):
         sr = self.sheen_roughness
         sheen = self.sheen_color * ex(_charlie_parts(hx, hy, iz, oz, sr))
         m_sheen = self._sheen_max()
-        scaling = jnp.minimum(1.0 - m_sheen * sheen_albedo(oz, sr),
-                              1.0 - m_sheen * sheen_albedo(iz, sr))
+        e = sheen_albedo(jnp.stack(jnp.broadcast_arrays(oz, iz)), sr)  # one lookup for both
+        scaling = 1.0 - m_sheen * jnp.maximum(e[0], e[1])
         f = sheen + material * ex(jnp.maximum(scaling, 0.0))
         # clearcoat on top of everything (KHR_materials_clearcoat, fresnel_coat with N.V)
         coat = self._coat_distribution()
@@ -430,10 +479,12 @@ class GltfPBR(AbstractBRDF):
         ``mu_o = oz`` (shape of ``oz``): proportional to each layer's Schlick estimate of its
         albedo with ``w(mu_o)`` in place of ``w(V.H)`` (the diffuse ``(1 - metallic)(1 -
         max3 F) max3(baseColor)``, the specular ``(1 - metallic) max3 F + metallic
-        max3(baseColor + (1 - baseColor) w)``, both times the sheen scaling, the sheen
-        ``max3(sheenColor) min(E(mu_o), 1)``, all three times ``1 - clearcoat F_c``, the clearcoat
+        max3(baseColor + (1 - baseColor) w)``, both times the sheen scaling with
+        :data:`SHEEN_ALBEDO_GUESS` for ``E``, the sheen ``max3(sheenColor)
+        SHEEN_ALBEDO_GUESS``, all three times ``1 - clearcoat F_c``, the clearcoat
         ``clearcoat F_c``), with :data:`P_DEFENSIVE` added to the cosine lobe; all to the cosine
-        lobe where every estimate is 0."""
+        lobe where every estimate is 0. (A guess, not the table, for the sheen: any positive
+        weights give an exact pdf, and the table lookup would double the pdf's program.)"""
         ch = self.channels()
         w = pow5(1.0 - oz)
         wx = expand_channels(w, ch)
@@ -442,14 +493,12 @@ class GltfPBR(AbstractBRDF):
         bc = self.base_color
         Fm = _cmax(bc + (1.0 - bc) * wx, ch)
         m = self.metallic
-        e_o = sheen_albedo(oz, self.sheen_roughness)
-        m_sheen = self._sheen_max()
-        s_sheen = jnp.clip(1.0 - m_sheen * e_o, 0.0, 1.0)
+        e_sheen = SHEEN_ALBEDO_GUESS * self._sheen_max()
         k = self.clearcoat * (CLEARCOAT_F0 + (1.0 - CLEARCOAT_F0) * w)
-        below = (1.0 - k) * s_sheen
+        below = (1.0 - k) * (1.0 - e_sheen)
         w_d = below * (1.0 - m) * (1.0 - Fd) * _max3(bc)
         w_s = below * ((1.0 - m) * Fd + m * Fm)
-        w_u = (1.0 - k) * m_sheen * jnp.minimum(e_o, 1.0)
+        w_u = (1.0 - k) * e_sheen
         w_c = k
         tot = w_d + w_u + w_s + w_c
         ok = tot > 0
@@ -667,7 +716,12 @@ _CORE = ("base_color", "metallic", "roughness")
 
 
 def _builder(**params):
-    return GltfPBR(**params)
+    """``GltfPBR`` with the parameters not given at the specification's defaults as arrays (RGB
+    colours) of the given ones' dtype: every entry builds models of one pytree structure, so the
+    compiled programs of one entry serve the others."""
+    dt = jnp.result_type(*params.values()) if params else jnp.result_type(float)
+    return GltfPBR(**{k: jnp.asarray(params[k]) if k in params else jnp.asarray(v, dt)
+                      for k, v in GLTF_DEFAULTS.items()})
 
 
 def registry_entries():
@@ -713,5 +767,13 @@ def registry_entries():
             year=2017 if name == "gltf-pbr" else None,
             sampler=sampler,
             expected_failures=dict(failures),
+            target="gltf",
+            native_export=_native_export,
         ))
     return out
+
+
+def _native_export(params: dict) -> tuple[dict, list[str]]:
+    """``Entry.native_export`` of the glTF entries: :func:`to_gltf_material` (the exporter
+    names the material)."""
+    return to_gltf_material(params, "")

@@ -132,7 +132,8 @@ TARGET_CANDIDATES = {
     "mitsuba": ("lambert", "mitsuba-roughconductor", "mitsuba-roughconductor-beckmann",
                 "mitsuba-roughplastic", "mitsuba-roughplastic-beckmann",
                 "mitsuba-principled"),
-    "gltf": ("lambert",),
+    "gltf": ("lambert", "gltf-pbr", "gltf-pbr-specular", "gltf-pbr-clearcoat",
+             "gltf-pbr-sheen"),
 }
 #: the candidates added when :func:`~brdf_fit.selection.anisotropy.detect_anisotropy` finds
 #: anisotropy (key None: no target)
@@ -140,7 +141,7 @@ ANISOTROPIC_CANDIDATES = {
     None: ("ggx-aniso", "ggx-conductor-aniso"),
     "mitsuba": ("mitsuba-roughconductor-aniso", "mitsuba-roughconductor-beckmann-aniso",
                 "mitsuba-principled-aniso"),
-    "gltf": (),
+    "gltf": ("gltf-pbr-anisotropy",),
 }
 #: entries of the literature a target holds exactly (besides the target's native entries):
 #: Lambert is Mitsuba's ``diffuse`` and glTF's dielectric with ``specularFactor`` 0; glTF's

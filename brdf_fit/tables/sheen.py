@@ -23,8 +23,8 @@ The metadata records ``accuracy``: ``interpolation`` (the largest ``|lookup - qu
 every cell centre of the grid, both axes at once), ``quadrature`` (the largest change of the
 quadrature when every panel's node count is doubled, on a subgrid) and ``max_abs``, their sum;
 tests/models/test_gltf_pbr.py compares spot values with an independent ``scipy.integrate``
-double integral. Regenerate with ``python -m brdf_fit.tables.sheen`` (about a minute on two
-cores).
+double integral. Regenerate with ``python -m brdf_fit.tables.sheen`` (6 minutes on two busy
+cores: 50,000 ``(mu, sr)`` pairs of 52,000 nodes each).
 """
 
 from __future__ import annotations
