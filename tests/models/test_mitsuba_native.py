@@ -77,7 +77,10 @@ def test_eval_equals_mitsuba(name):
     for params in SETS[name]:
         full = {**entry.defaults(), **{k: np.asarray(v, float) for k, v in params.items()}}
         model = entry.build(**full)
-        ours = np.asarray(eval_jit(model, jnp.asarray(wi), jnp.asarray(wo)))
+        # at the float32 directions Mitsuba's Vector3f holds (bench_native_parity.py: at
+        # near-opposite grazing pairs the inputs' rounding alone moves values by 6e-5)
+        ours = np.asarray(eval_jit(model, jnp.asarray(wi.astype(np.float32).astype(float)),
+                                   jnp.asarray(wo.astype(np.float32).astype(float))))
         theirs = mitsuba_eval(entry.native_export(full), wi, wo)
         tol = PARITY_RTOL * np.abs(theirs) + PARITY_ATOL_REL * np.max(np.abs(theirs))
         err = np.abs(ours - theirs)
