@@ -39,6 +39,7 @@ from brdf_fit.models import (
     ashikhmin_shirley,
     beard_maxwell,
     cook_torrance_1982,
+    disney,
     gltf_pbr,
     granier_heidrich,
     hanrahan_krueger,
@@ -451,6 +452,7 @@ FAMILY_MODULES = (
     poulin_fournier,
     kajiya,
     westin,
+    disney,
 )
 
 for _module in FAMILY_MODULES:

@@ -165,6 +165,10 @@ class Entry:
     #: for a native entry: ``params -> the target's description`` (a Mitsuba scene dict, a glTF
     #: material), parameter for parameter, so that the export is the fitted model itself
     native_export: Callable[[dict], Any] | None = None
+    #: non-empty (the reason) when a channel's value depends on other channels' entries of a
+    #: channel parameter (glTF's max over the Fresnel colour, a tint by luminance): fitting
+    #: then takes every channel parameter entry by entry (brdf_fit.fitting.problem)
+    channels_coupled: str = ""
 
     @property
     def param_names(self) -> tuple[str, ...]:

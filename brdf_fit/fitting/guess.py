@@ -121,8 +121,11 @@ def _column_design(transform, default, t):
 
 def _split_vary(problem, vary):
     lay = problem.layout
-    shared = [n for n, c in zip(lay.names, lay.channels, strict=True) if n in vary and not c]
-    chan = [n for n, c in zip(lay.names, lay.channels, strict=True) if n in vary and c]
+    # a model that couples its channels has no channel-separable parameter: every one is a
+    # design dimension (same value in every entry), none is picked channel by channel
+    sep = tuple(c and not lay.coupled for c in lay.channels)
+    shared = [n for n, c in zip(lay.names, sep, strict=True) if n in vary and not c]
+    chan = [n for n, c in zip(lay.names, sep, strict=True) if n in vary and c]
     return shared, chan
 
 

@@ -402,6 +402,10 @@ class ModelSource:
     key: Any
     #: check name -> reason, for checks the model is not meant to pass (registry entries)
     expected_failures: Mapping[str, str]
+    #: whether a channel's output depends on other channels' entries of a channel parameter
+    #: (e.g. glTF's max over the Fresnel colour): then no parameter is taken channel by
+    #: channel (:meth:`ParamLayout.structured`, :meth:`ParamLayout.channel_index`)
+    coupled: bool = False
 
     @functools.cached_property
     def _by_name(self) -> dict[str, ParamSpec]:
@@ -440,6 +444,7 @@ class RegistrySource(ModelSource):
         self.name = entry.name
         self.key = ("registry", entry.name)
         self.expected_failures = entry.expected_failures
+        self.coupled = bool(entry.channels_coupled)
         self.params = tuple(
             ParamSpec(p.name, Transform.of(p), bool(p.channels), p.default_value(), None,
                       p.validate)
@@ -700,13 +705,17 @@ class ParamLayout:
     shapes: tuple[tuple[int, ...], ...]
     transforms: tuple[Transform, ...]
     channels: tuple[bool, ...]
+    #: the model couples its channels (:attr:`ModelSource.coupled`): every parameter is
+    #: taken entry by entry, never channel by channel
+    coupled: bool = False
 
     @classmethod
     def of(cls, source: ModelSource, names: Iterable[str], shapes) -> ParamLayout:
         names = tuple(names)
         specs = [source.param(n) for n in names]
         return cls(names, tuple(tuple(int(d) for d in s) for s in shapes),
-                   tuple(p.transform for p in specs), tuple(p.channels for p in specs))
+                   tuple(p.transform for p in specs), tuple(p.channels for p in specs),
+                   bool(getattr(source, "coupled", False)))
 
     @functools.cached_property
     def sizes(self) -> tuple[int, ...]:
@@ -756,14 +765,17 @@ class ParamLayout:
 
     def structured(self, n_channels: int) -> tuple[bool, ...]:
         """Per parameter: a channel parameter the structured Jacobian takes with one tangent
-        for all channels (declared a channel parameter, shape ``(C,)``)."""
-        return tuple(c and tuple(s) == (n_channels,)
+        for all channels (declared a channel parameter, shape ``(C,)``, of a model that does
+        not couple its channels)."""
+        return tuple(c and tuple(s) == (n_channels,) and not self.coupled
                      for c, s in zip(self.channels, self.shapes, strict=True))
 
     def channel_index(self, n_channels: int) -> np.ndarray:
         """Per flat entry: its channel for a channel parameter of ``n_channels`` entries, else
         -1 (a shared entry)."""
         idx = np.full(self.size, -1, int)
+        if self.coupled:  # one design dimension per parameter, no per-channel pick
+            return idx
         for c, size, sl in zip(self.channels, self.sizes, self.slices, strict=True):
             if c and size == n_channels:
                 idx[sl] = np.arange(size)

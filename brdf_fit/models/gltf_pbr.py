@@ -691,16 +691,18 @@ _ENTRY_PARAMS = {
                        doc="roughnessFactor (perceptual): GGX alpha = max(roughness^2, 1e-4)"),
     "specular_factor": Param("specular_factor", 1.0, lo=0.0, hi=1.0,
                              doc="KHR_materials_specular specularFactor"),
-    "specular_color": Param("specular_color", (1.0, 1.0, 1.0), lo=0.0, channels=True,
+    # entry defaults with unequal channels: glTF's max over the colour channels has a kink
+    # where two channels tie, and a default there makes derivatives one-sided
+    "specular_color": Param("specular_color", (1.0, 0.9, 0.8), lo=0.0, channels=True,
                             doc="KHR_materials_specular specularColorFactor (F0 = min(0.04 c, "
                                 "1) specular; > 1 allowed)"),
     "anisotropy_strength": Param("anisotropy_strength", 0.5, lo=0.0, hi=1.0,
                                  doc="KHR_materials_anisotropy anisotropyStrength: "
                                      "a_t = mix(alpha, 1, strength^2)"),
-    "anisotropy_rotation": Param("anisotropy_rotation", 0.0,
+    "anisotropy_rotation": Param("anisotropy_rotation", 0.3,
                                  doc="KHR_materials_anisotropy anisotropyRotation (radians, "
                                      "counter-clockwise from the tangent)"),
-    "sheen_color": Param("sheen_color", (0.5, 0.5, 0.5), lo=0.0, hi=1.0, channels=True,
+    "sheen_color": Param("sheen_color", (0.5, 0.4, 0.3), lo=0.0, hi=1.0, channels=True,
                          doc="KHR_materials_sheen sheenColorFactor (linear RGB)"),
     "sheen_roughness": Param("sheen_roughness", 0.5, lo=0.0, hi=1.0,
                              doc="KHR_materials_sheen sheenRoughnessFactor: Charlie "
@@ -769,8 +771,16 @@ def registry_entries():
             expected_failures=dict(failures),
             target="gltf",
             native_export=_native_export,
+            channels_coupled=_COUPLED,
         ))
     return out
+
+
+#: ``Entry.channels_coupled`` of every glTF entry: the dielectric mix weights the diffuse lobe
+#: by ``1 - max(F.r, F.g, F.b)`` (KHR_materials_specular) and the sheen scales the base by
+#: ``1 - max3(sheenColor) E``: one channel's value reads the others' colour entries
+_COUPLED = ("the dielectric mix weights the diffuse by 1 - max3(F) and the sheen scales the "
+            "base by 1 - max3(sheenColor) E: a channel's value reads the other channels")
 
 
 def _native_export(params: dict) -> tuple[dict, list[str]]:

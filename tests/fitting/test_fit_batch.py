@@ -375,7 +375,23 @@ def test_prepared_residuals_equal_fit_residuals(metric, sigma, cos_weight):
 
 def _has_product_design(entry):
     kinds = {p.channels for p in entry.params}
-    return kinds == {True, False}
+    return kinds == {True, False} and not entry.channels_coupled
+
+
+@pytest.mark.parametrize("name", [e.name for e in registry.entries() if e.channels_coupled])
+def test_models_that_couple_channels_take_no_channel_shortcut(name):
+    """An entry that declares its channels coupled (glTF's max over the Fresnel colour) gets
+    neither the one-tangent-per-channel-parameter Jacobian nor the per-channel guess: its
+    structured Jacobian is jacfwd's (the test above, which it must pass all the same)."""
+    from brdf_fit.fitting import guess as G
+
+    entry = registry.get(name)
+    prob, u = _problem_at(entry, np.random.default_rng(3))
+    assert not any(prob.layout.structured(3))
+    assert np.all(prob.layout.channel_index(3) == -1)
+    assert G.layout(prob, prob.free) is None
+    err, _ = _check_structured(entry, prob, u)
+    assert err < 1e-12, err
 
 
 @pytest.mark.parametrize("name", [

@@ -61,6 +61,13 @@ TRUTH = {
     "ggx-conductor": {"eta": [0.27, 0.68, 1.32], "k": [3.6, 2.6, 2.3]},
     "ggx-conductor-aniso": {"eta": [0.27, 0.68, 1.32], "k": [3.6, 2.6, 2.3]},
 }
+#: Solver steps beyond the default 256, with the reason (identifiable, but slow to converge).
+MAX_STEPS = {
+    # metallic (the metal F0 = base colour) and specularColor (the dielectric F0) both move the
+    # specular level: a long narrow valley; measured 609 LM steps to the truth (residual
+    # 2.6e-17) from the standard start, 2e-8 after 256
+    "gltf-pbr-specular": 1000,
+}
 #: Expected failures (strict): a test here that starts passing is reported.
 XFAIL: dict[str, str] = {}
 #: Cases excluded from the default run (each 5-40 s, measured: four compilations per fit() call):
@@ -157,7 +164,7 @@ def test_noise_free_recovery(name):
     init = {k: v for k, v in start.items() if k not in held}
     wi, wo = plan()
     data = synth(entry, truth, wi, wo)
-    r = fit(data, name, fix=fix, init=init)
+    r = fit(data, name, fix=fix, init=init, max_steps=MAX_STEPS.get(name, 256))
     assert r.converged, r.message
     for k, v in truth.items():
         np.testing.assert_allclose(r.params[k], v, rtol=RTOL, atol=0, err_msg=f"{name}: {k}")
