@@ -36,7 +36,7 @@ def dataset(name, seed=3):
 def test_selects_the_right_kind_of_model(name):
     d = dataset(name)
     cands = CANDIDATES if name == "gold" else CANDIDATES[:3]
-    s = select(d, cands, checks=())
+    s = select(d, cands, checks=(), anisotropy=False)  # the test's subject: the kind chosen
     assert s.choice is not None
     assert (s.choice in DIFFUSE) == (name == "lambert"), s.choice
     ch = s.candidate(s.choice)
@@ -107,7 +107,7 @@ def demo_selection():
     from brdf_fit import demo
 
     d = synthesize(demo.DEMO_RECIPE)
-    return d, select(d, [name for name, _ in demo.DEMO_FITS], checks=())
+    return d, select(d, [name for name, _ in demo.DEMO_FITS], checks=(), anisotropy=False)
 
 
 def test_a_candidate_that_cannot_be_fitted_loses_no_other():
@@ -117,7 +117,8 @@ def test_a_candidate_that_cannot_be_fitted_loses_no_other():
     the slow multistart test below.)"""
     from brdf_fit import demo
 
-    s = select(synthesize(demo.DEMO_RECIPE), ["modified-phong", "ggx"], checks=())
+    s = select(synthesize(demo.DEMO_RECIPE), ["modified-phong", "ggx"], checks=(),
+               anisotropy=False)
     bad = s.candidate("modified-phong")
     assert "rho_d + rho_s" in bad.message and not bad.within_budget and not bad.pareto
     assert s.choice == "ggx" and s.candidates[-1].model == "modified-phong"
@@ -169,6 +170,6 @@ def test_families_name_registry_entries_and_select_takes_one(monkeypatch):
     from brdf_fit.selection import selector
 
     monkeypatch.setitem(selector.FAMILIES, "pair", ("lambert", "ggx"))
-    s = select(dataset("lambert"), family="pair", checks=())
+    s = select(dataset("lambert"), family="pair", checks=(), anisotropy=False)
     assert [c.model for c in s.candidates if c.message] == []
     assert {c.model for c in s.candidates} == {"lambert", "ggx"} and s.choice == "lambert"
