@@ -16,6 +16,7 @@ import math
 import zlib
 from collections.abc import Mapping
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -254,3 +255,17 @@ def cli_one_error(capsys, argv, fragment):
     lines = [ln for ln in err.splitlines() if ln.strip()]
     assert code == 2 and "Traceback" not in err, err
     assert sum("error:" in ln for ln in lines) == 1 and fragment in lines[-1], err
+
+
+class SampleOnePdfOther(eqx.Module):
+    """Negative control for chi-square tests: the sampler of ``inner`` reported with the pdf of
+    ``other`` (a pdf that does not describe the sampler must be rejected)."""
+
+    inner: eqx.Module
+    other: eqx.Module
+
+    def sample(self, wo, uc, u):
+        return self.inner.sample(wo, uc, u)
+
+    def pdf(self, wi, wo):
+        return self.other.pdf(wi, wo)

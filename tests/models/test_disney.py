@@ -17,12 +17,12 @@ import dataclasses
 import functools
 import math
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 from _helpers import (
+    SampleOnePdfOther,
     assert_finite,
     assert_sampling_finite,
     central_differences,
@@ -433,19 +433,6 @@ CHI2_PARAMS = dict(baseColor=(0.8, 0.3, 0.1), roughness=0.4, metallic=0.3, aniso
                    subsurface=0.5, sheen=0.5, clearcoat=0.8, clearcoatGloss=0.5)
 
 
-class _SampleOnePdfOther(eqx.Module):
-    """Negative control: the sampler of ``inner``, the pdf of ``other``."""
-
-    inner: DisneyBRDF
-    other: DisneyBRDF
-
-    def sample(self, wo, uc, u):
-        return self.inner.sample(wo, uc, u)
-
-    def pdf(self, wi, wo):
-        return self.other.pdf(wi, wo)
-
-
 def _chi2(model, cos_o, seed):
     return chi2_test_brdf(model, jnp.asarray(_unit(cos_o, 0.4)), n_samples=100_000, seed=seed,
                           test_count=len(CHI2_VIEWS) + 1, cell_nodes=8)
@@ -467,7 +454,7 @@ def test_chi2_rejects_a_pdf_without_the_clearcoat():
     itself is tested against its CDF above."""
     m = DisneyBRDF(**_params(CHI2_PARAMS))
     other = dataclasses.replace(m, clearcoat=jnp.asarray(0.0))
-    r = _chi2(_SampleOnePdfOther(m, other), CHI2_VIEWS[0], seed_of("disney-neg"))
+    r = _chi2(SampleOnePdfOther(m, other), CHI2_VIEWS[0], seed_of("disney-neg"))
     assert not r.passed
 
 

@@ -21,12 +21,11 @@ pairs (weighted 0 in the finite differences).
 import dataclasses
 import math
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from _helpers import assert_finite, central_differences, eval_jit, seed_of
+from _helpers import SampleOnePdfOther, assert_finite, central_differences, eval_jit, seed_of
 
 import brdf_fit as bf
 from brdf_fit.core.frame import unit_from_angles
@@ -394,19 +393,6 @@ CHI2_PARAMS = dict(base_color=[0.8, 0.3, 0.1], roughness=0.4, metallic=0.4, anis
                    clearcoat=0.6, clearcoat_gloss=0.5)
 
 
-class _SampleOnePdfOther(eqx.Module):
-    """Negative control: the sampler of ``inner``, the pdf of ``other``."""
-
-    inner: MitsubaPrincipled
-    other: MitsubaPrincipled
-
-    def sample(self, wo, uc, u):
-        return self.inner.sample(wo, uc, u)
-
-    def pdf(self, wi, wo):
-        return self.other.pdf(wi, wo)
-
-
 def _chi2(model, cos_o, seed):
     return chi2_test_brdf(model, jnp.asarray(_unit(cos_o, 0.4)), n_samples=100_000, seed=seed,
                           test_count=len(CHI2_VIEWS) + 1, cell_nodes=8)
@@ -424,7 +410,7 @@ def test_chi2_rejects_wrong_lobe_probabilities():
     probability 0.086 -> 0.158) must fail the same test."""
     model = build(CHI2_PARAMS)
     other = dataclasses.replace(model, clearcoat_sampling_rate=2.0)
-    r = _chi2(_SampleOnePdfOther(model, other), CHI2_VIEWS[0], seed_of("mitsuba-neg"))
+    r = _chi2(SampleOnePdfOther(model, other), CHI2_VIEWS[0], seed_of("mitsuba-neg"))
     assert not r.passed
 
 

@@ -8,7 +8,7 @@ outcome reproducible)."""
 import os
 
 import pytest
-from _helpers import dir_from_cos
+from _helpers import SampleOnePdfOther, dir_from_cos
 from _helpers import seed_of as _crc32_seed
 
 from brdf_fit import registry
@@ -95,20 +95,8 @@ def test_microfacet_strategy_matches_pdf(name, dist, mask, sampling, cos_o):
 def test_negative_control_wrong_beckmann_lambda_in_pdf():
     """A Beckmann visible-normal pdf that used GGX's G1 would be wrong by up to a few percent at
     grazing; the test must see it (guards against a chi-square that cannot fail here)."""
-    import equinox as eqx
-
-    class WrongPdf(eqx.Module):
-        inner: MicrofacetBRDF
-        other: MicrofacetBRDF
-
-        def sample(self, wo, uc, u):
-            return self.inner.sample(wo, uc, u)
-
-        def pdf(self, wi, wo):
-            return self.other.pdf(wi, wo)
-
     good = MicrofacetBRDF(Beckmann(0.6), SmithHeightCorrelated(), SchlickFresnel(1.0))
     bad_pdf = MicrofacetBRDF(GGX(0.6), SmithHeightCorrelated(), SchlickFresnel(1.0))
-    r = chi2_test_brdf(WrongPdf(good, bad_pdf), wo_at(0.3), n_samples=100_000, seed=1,
+    r = chi2_test_brdf(SampleOnePdfOther(good, bad_pdf), wo_at(0.3), n_samples=100_000, seed=1,
                        test_count=N_TESTS)
     assert not r.passed
