@@ -42,6 +42,9 @@ the smallest error is exported; without Mitsuba the first, the predicted best, i
 * ``ggx-separable`` -> the same candidates; ``principled`` is exact.
 * ``beckmann`` / ``beckmann-walter`` -> ``roughconductor`` beckmann with either ``(eta, k)``
   (approximate: the Fresnel curve, and for ``beckmann`` the rational separable G1).
+* ``ggx-conductor-aniso`` -> ``roughconductor`` ggx with ``alpha_u = alpha_x`` (the tangent)
+  and ``alpha_v = alpha_y``; ``ggx-aniso`` -> the two fitted-Fresnel ``roughconductor``
+  candidates at those widths (approximate, as their isotropic forms).
 * ``ggx-plastic`` (``rho_d/pi`` + GGX with Schlick ``f0``, summed) -> ``blendbsdf`` of weight
   0.5 (``0.5 A + 0.5 B``) of ``diffuse`` with reflectance ``2 rho_d`` (an unbounded ``srgb``
   texture where ``2 rho_d > 1``) and ``roughconductor`` ggx with ``specular_reflectance`` 2 (a
@@ -52,7 +55,8 @@ the smallest error is exported; without Mitsuba the first, the predicted best, i
 Measured errors at default parameters on the default geometry (Mitsuba 3.9.1): lambert 1.8e-8
 (float32), ggx-separable 3.1e-7, ggx-conductor 1.93e-2, ggx 4.20e-2 (principled; the
 ``roughconductor`` candidates 0.105 / 0.114), ggx-plastic 5.78e-2 (``roughplastic`` 0.105),
-beckmann 8.75e-2, beckmann-walter 8.64e-2. For a Schlick-Fresnel source, exporting from a
+beckmann 8.75e-2, beckmann-walter 8.64e-2, ggx-conductor-aniso 1.17e-3, ggx-aniso 5.29e-2
+(``roughconductor-fit``; ``-schlick`` 5.91e-2). For a Schlick-Fresnel source, exporting from a
 ``ggx-separable`` fit is exact.
 
 Any other model raises :class:`ExportError` naming it (export it to glTF, fitted, instead).
@@ -119,6 +123,10 @@ MAPPINGS = {
     "beckmann": ("roughconductor-fit", "roughconductor-schlick"),
     "beckmann-walter": ("roughconductor-fit", "roughconductor-schlick"),
     "ggx-plastic": ("blendbsdf", "roughplastic"),
+    # the anisotropic candidates selection adds when the data show anisotropy: Mitsuba's
+    # roughconductor takes alpha_u (along the tangent, our x) and alpha_v
+    "ggx-conductor-aniso": ("roughconductor",),
+    "ggx-aniso": ("roughconductor-fit", "roughconductor-schlick"),
 }
 _EXACT = {("lambert", "diffuse"), ("ggx-separable", "principled")}
 _NOTES = {
@@ -263,17 +271,20 @@ def _f0_roots(f):
     return eta[ok], kk[ok]
 
 
-def separable_conductor(alpha, eta, k, distribution: str = "ggx") -> MicrofacetBRDF:
+def separable_conductor(alpha, eta, k, distribution: str = "ggx",
+                        alpha_v=None) -> MicrofacetBRDF:
     """Mitsuba 3 ``roughconductor``'s semantics as a model of this package: GGX or Beckmann
     with Walter's rational G1 (Mitsuba's ``smith_g1``), separable Smith G, the exact conductor
-    Fresnel (module docstring; held against Mitsuba by the tests)."""
-    dist = (GGX(alpha) if distribution == "ggx"
-            else Beckmann(alpha, lambda_approx="walter"))
+    Fresnel (module docstring; held against Mitsuba by the tests). ``alpha_v``: the width along
+    the bitangent when anisotropic (``alpha`` is then Mitsuba's ``alpha_u``)."""
+    dist = (GGX(alpha, alpha_v) if distribution == "ggx"
+            else Beckmann(alpha, alpha_v, lambda_approx="walter"))
     return MicrofacetBRDF(distribution=dist, masking=SmithSeparable(),
                           fresnel=ConductorFresnel(eta, k))
 
 
-def fitted_conductor_ior(target, wi, wo, alpha, f0, distribution: str = "ggx"):
+def fitted_conductor_ior(target, wi, wo, alpha, f0, distribution: str = "ggx",
+                         alpha_v=None):
     """``(eta, k)`` per channel for a ``roughconductor`` whose predicted values
     (:func:`separable_conductor`) best match ``target`` (``(N, 3)``, e.g. a Schlick-Fresnel
     lobe) in the cos-weighted radiance least squares on ``(wi, wo)``, keeping ``F(1) = f0``:
@@ -288,7 +299,7 @@ def fitted_conductor_ior(target, wi, wo, alpha, f0, distribution: str = "ggx"):
         for ch in range(3):
             eta, kk = _f0_roots(f0[ch])
             f = np.asarray(separable_conductor(alpha, jnp.asarray(eta), jnp.asarray(kk),
-                                               distribution).eval(wij, woj))
+                                               distribution, alpha_v).eval(wij, woj))
             score = np.sum(((f - target[:, ch:ch + 1]) * c) ** 2, axis=0)
             j = int(np.argmin(score))
             etas[ch], ks[ch] = eta[j], kk[j]
@@ -316,10 +327,17 @@ def _candidate(kind: str, model: str, p: dict, geometry=None) -> dict:
     ``geometry = (wi, wo, target)`` (the source's specular values) for the ``-fit`` kinds and
     ``blendbsdf``."""
     dist = "beckmann" if model.startswith("beckmann") else "ggx"
+    # Mitsuba's widths: ``alpha``, or ``alpha_u`` (tangent, our x) and ``alpha_v``
+    if "alpha_x" in p:
+        au, av = float(p["alpha_x"]), float(p["alpha_y"])
+        widths = {"alpha_u": au, "alpha_v": av}
+    else:
+        au, av = (float(p["alpha"]) if "alpha" in p else None), None
+        widths = {"alpha": au}
     if kind == "diffuse":
         return {"type": "diffuse", "reflectance": _rgb(p["rho"])}
     if kind == "roughconductor":
-        return {"type": "roughconductor", "distribution": "ggx", "alpha": float(p["alpha"]),
+        return {"type": "roughconductor", "distribution": "ggx", **widths,
                 "eta": _param_rgb(p["eta"]), "k": _param_rgb(p["k"])}
     if kind == "principled":
         return {"type": "principled", "base_color": _rgb(p["f0"]), "metallic": 1.0,
@@ -330,8 +348,8 @@ def _candidate(kind: str, model: str, p: dict, geometry=None) -> dict:
             eta, k = schlick_conductor_ior(f0)
         else:
             wi, wo, target = geometry
-            eta, k = fitted_conductor_ior(target, wi, wo, float(p["alpha"]), f0, dist)
-        lobe = {"type": "roughconductor", "distribution": dist, "alpha": float(p["alpha"]),
+            eta, k = fitted_conductor_ior(target, wi, wo, au, f0, dist, av)
+        lobe = {"type": "roughconductor", "distribution": dist, **widths,
                 "eta": _param_rgb(eta), "k": _param_rgb(k)}
         if kind != "blendbsdf":
             return lobe

@@ -5,6 +5,7 @@ errors recomputed here, the XML equal to the dict, and the export without Mitsub
 
 import math
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -182,10 +183,37 @@ def test_beckmann_walter_matches_the_rational_g1_and_fitted_fresnel(mi):
     np.testing.assert_allclose(got, pred, rtol=F32_REL, atol=1e-9 * pred.max())
 
 
-@pytest.mark.parametrize("model", ["ggx", "ggx-plastic", "beckmann"])
+def test_ggx_conductor_aniso_keeps_its_widths_on_their_axes(mi):
+    """The anisotropic conductor (a default candidate when the data show anisotropy) goes to
+    roughconductor with alpha_u = alpha_x (the tangent) and alpha_v = alpha_y: Mitsuba's values
+    are the separable-G anisotropic GGX at those widths, and the widths swapped are far off."""
+    p = {"alpha_x": 0.08, "alpha_y": 0.3}
+    e = to_mitsuba("ggx-conductor-aniso", p)
+    d = e.scene_dict
+    assert e.plugin == "roughconductor" and e.method == "approximate"
+    assert (d["alpha_u"], d["alpha_v"]) == (0.08, 0.3) and "alpha" not in d
+    wi, wo = sample_dirs(7)
+    got = mitsuba_eval(d, wi, wo)
+    eta, k = rgb_of(d["eta"]), rgb_of(d["k"])
+    with jax.enable_x64(True):
+        pred = np.asarray(cm.separable_conductor(0.08, jnp.asarray(eta), jnp.asarray(k),
+                                                 alpha_v=0.3).eval(jnp.asarray(wi),
+                                                                   jnp.asarray(wo)))
+        swapped = np.asarray(cm.separable_conductor(0.3, jnp.asarray(eta), jnp.asarray(k),
+                                                    alpha_v=0.08).eval(jnp.asarray(wi),
+                                                                       jnp.asarray(wo)))
+    np.testing.assert_allclose(got, pred, rtol=F32_REL, atol=1e-9 * pred.max())
+    assert radiance_error(pred, swapped, wi) > 0.1
+    # the source (height-correlated G) differs from it by the separable G alone
+    assert e.error < CONDUCTOR_BOUND
+
+
+@pytest.mark.parametrize("model", ["ggx", "ggx-plastic", "beckmann", "ggx-aniso"])
 def test_reported_errors_equal_the_recomputed_ones(mi, model):
     e = to_mitsuba(model)
-    alpha = float(registry.get(model).defaults()["alpha"])
+    d = registry.get(model).defaults()
+    alpha = (float(d["alpha"]) if "alpha" in d
+             else math.sqrt(float(d["alpha_x"]) * float(d["alpha_y"])))
     wi, wo, _ = cm.default_geometry(alpha)
     step = math.ceil(wi.shape[0] / MAX_MITSUBA_SAMPLES)
     wi, wo = wi[::step], wo[::step]
