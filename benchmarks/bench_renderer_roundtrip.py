@@ -168,7 +168,8 @@ def main(argv=None) -> int:
              f"{info.get('jax')}, {info.get('date_utc')}, load {info.get('loadavg_start')} -> "
              f"{info.get('loadavg_end')}", "",
              f"`brdf-fit select --scene ... {'--target ' + args.target if args.target else ''}` "
-             f"in a fresh process with an empty compilation cache: {wall:.1f} s wall, exit status {proc.returncode}; the XML "
+             f"in a fresh process with an empty compilation cache: {wall:.1f} s wall, exit "
+             f"status {proc.returncode}; the XML "
              f"parses with xml.etree; glTF: {gl.get('validator')}: {gl.get('numErrors')} "
              f"errors, {gl.get('numWarnings')} warnings.", "",
              "| material | chosen | represented | fit error | anisotropy statistic | export "
