@@ -1345,8 +1345,10 @@ def _lut_albedo(args) -> int:
     else:
         err = (meta.get("error_estimate") or {}).get("max_abs")
         shape = " x ".join(f"{a.name}={a.n}" for a in table.axes)
+        est = ("no error estimate is computed for this table" if err is None
+               else f"error estimate {err:.2g} max abs")
         print(f"{args.table} of {entry.name} on {shape} ({','.join(table.channels)}): "
-              f"error estimate {'-' if err is None else f'{err:.2g}'} max abs; {seconds:.2f} s")
+              f"{est}; {seconds:.2f} s")
         for p in paths:
             print(f"wrote {p}")
     return 0

@@ -34,8 +34,8 @@ A statement repeated within a material: the last one wins and the earlier one is
 keywords, dialect keywords such as ``Pcc``) is recorded in ``ignored`` as ``(line, text)``, never
 an error.
 
-Errors are :class:`MtlError`: one line, ``"{path}:{line}: {problem}"``. Line 0 means the file as
-a whole (it cannot be read); an empty file or one without materials is reported at line 1.
+Errors are :class:`MtlError`: one line, ``"{path}:{line}: {problem}"``, or ``"{path}: {problem}"``
+for the file as a whole (``line`` 0: it cannot be read); an empty file or one without materials is reported at line 1.
 With ``skip_bad=True`` a material holding a bad statement is dropped, its error collected, and
 reading goes on at the next ``newmtl``; :func:`read_mtl` and :func:`parse_mtl` then return a
 :class:`MtlReadResult`.
@@ -92,7 +92,8 @@ class MtlError(DataError):
 
     def __init__(self, path: str, line: int, problem: str, material: str | None = None):
         self.path, self.line, self.problem, self.material = str(path), int(line), problem, material
-        one_line = " ".join(f"{self.path}:{self.line}: {problem}".split())
+        where = self.path if self.line == 0 else f"{self.path}:{self.line}"  # 0: the file
+        one_line = " ".join(f"{where}: {problem}".split())
         super().__init__(one_line)
 
 

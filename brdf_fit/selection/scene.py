@@ -97,7 +97,8 @@ class SceneError(ValueError):
 
     def __init__(self, path, line: int, problem: str, material: str | None = None):
         self.path, self.line, self.problem, self.material = str(path), int(line), problem, material
-        super().__init__(" ".join(f"{self.path}:{self.line}: {problem}".split()))
+        where = self.path if self.line == 0 else f"{self.path}:{self.line}"  # 0: the file
+        super().__init__(" ".join(f"{where}: {problem}".split()))
 
 
 @dataclasses.dataclass

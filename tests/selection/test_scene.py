@@ -177,7 +177,8 @@ def test_bad_scenes_are_one_line_errors_naming_file_and_line(tmp_path, body, lin
     with pytest.raises(sc.SceneError) as ei:
         sc.load_scene(p)
     msg = str(ei.value)
-    assert "\n" not in msg and msg.startswith(f"{p}:{line}: ") and fragment in msg, msg
+    where = f"{p}" if line == 0 else f"{p}:{line}"  # line 0: the file as a whole
+    assert "\n" not in msg and msg.startswith(f"{where}: ") and fragment in msg, msg
 
 
 def test_skip_bad_lists_bad_materials_and_keeps_the_others(tmp_path, capsys):

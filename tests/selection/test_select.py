@@ -52,6 +52,17 @@ def test_selects_the_right_kind_of_model(name):
     assert any(c.pareto for c in s.candidates)
 
 
+def test_a_budget_below_every_error_names_the_best_and_what_to_give():
+    """A budget no candidate meets (below the noise) is not "no candidate represents this
+    material" (the best is below the ceiling): the message names the best and its error and
+    says what to change."""
+    s = select(dataset("lambert"), ["lambert"], budget=1e-4, checks=(), anisotropy=False)
+    best = s.candidate("lambert")
+    assert s.choice is None and s.represented and not best.within_budget
+    assert "lambert" in s.message and f"{best.error:.4g}" in s.message
+    assert "give a budget above" in s.message and "--family all" in s.message
+
+
 def test_error_is_the_stated_radiance_error():
     d = dataset("plastic")
     assert radiance_error(d, d.value) == 0.0
