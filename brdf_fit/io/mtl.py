@@ -34,8 +34,9 @@ A statement repeated within a material: the last one wins and the earlier one is
 keywords, dialect keywords such as ``Pcc``) is recorded in ``ignored`` as ``(line, text)``, never
 an error.
 
-Errors are :class:`MtlError`: one line, ``"{path}:{line}: {problem}"``, or ``"{path}: {problem}"``
-for the file as a whole (``line`` 0: it cannot be read); an empty file or one without materials is reported at line 1.
+Errors are :class:`MtlError`: one line, ``"{path}:{line}: {problem}"``, or
+``"{path}: {problem}"`` for the file as a whole (``line`` 0: it cannot be read); an empty file
+or one without materials is reported at line 1.
 With ``skip_bad=True`` a material holding a bad statement is dropped, its error collected, and
 reading goes on at the next ``newmtl``; :func:`read_mtl` and :func:`parse_mtl` then return a
 :class:`MtlReadResult`.
