@@ -855,14 +855,20 @@ def _print_demo(doc: dict) -> None:
               f"{c['ggx_alpha']:.4g} (closed form, peak match: brdf_fit.convert.phong.{c['via']})")
     sel = doc.get("selection")
     if sel:
+        committed = str(sel.get("cost_rule", "")).startswith("committed")
         print("\nModel selection (brdf_fit.select; error: relative RMS of f cos(theta_i), each "
-              "model refitted in it; cost measured here):")
+              "model refitted in it; " + (
+                  "the cheapest within budget by the committed cost, x Lambert from "
+                  "brdf_fit/resources/catalogue_cost.json; ns/eval: this run's live timing):"
+                  if committed else "cost measured in this run):"))
         for c in sel["candidates"]:
             if c["message"]:
                 print(f"  {c['model']:<{w}} no fit: {c['message']}")
                 continue
             mark = "  <- choice" if c["model"] == sel["choice"] else ""
-            print(f"  {c['model']:<{w}} error {c['error']:8.4f}  {c['cost_ns']:7.2f} ns/eval  "
+            rel = ("" if c.get("cost_rel") is None
+                   else f"{c['cost_rel']:5.2f} x Lambert  ")
+            print(f"  {c['model']:<{w}} error {c['error']:8.4f}  {rel}{c['cost_ns']:7.2f} ns/eval  "
                   f"{'in' if c['within_budget'] else 'out'} budget{mark}")
         print(f"  budget {sel['budget']:.4g} ({sel['budget_rule']})")
     print(f"\nChecks on the best model ({doc['best']}):")

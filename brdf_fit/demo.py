@@ -129,7 +129,8 @@ def run_demo(out_dir, plots: bool = True, progress: bool = True) -> dict:
     ranked = sorted(results.values(), key=lambda r: r.residual_rms)
     best = ranked[0]
     # which model renders this material within budget at the least cost (brdf_fit.select:
-    # each candidate refitted in the relative radiance error, its cost measured here)
+    # each candidate refitted in the relative radiance error; the committed cost table decides,
+    # so the choice does not move with this run's timings)
     sel = select(data, [name for name, _ in DEMO_FITS], checks=())
     note(f"selection: {sel.choice} (budget {sel.budget:.3g}, {sel.budget_rule})")
     checks = run_checks(best.model, checks=list(DEMO_CHECKS), name=best.model_name,
