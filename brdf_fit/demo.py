@@ -131,7 +131,12 @@ def run_demo(out_dir, plots: bool = True, progress: bool = True) -> dict:
     # which model renders this material within budget at the least cost (brdf_fit.select:
     # each candidate refitted in the relative radiance error; the committed cost table decides,
     # so the choice does not move with this run's timings)
-    sel = select(data, [name for name, _ in DEMO_FITS], checks=())
+    def sel_progress(done, total, what):  # the longest step: say what it is doing
+        if what and what != "done":
+            note(f"selection: {what}" if what == "anisotropy test"
+                 else f"selection {done + 1}/{total}: refitting {what} in the radiance error")
+
+    sel = select(data, [name for name, _ in DEMO_FITS], checks=(), progress=sel_progress)
     note(f"selection: {sel.choice} (budget {sel.budget:.3g}, {sel.budget_rule})")
     checks = run_checks(best.model, checks=list(DEMO_CHECKS), name=best.model_name,
                         expected_failures=registry.get(best.model_name).expected_failures)
