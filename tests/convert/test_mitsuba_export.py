@@ -212,13 +212,10 @@ def test_ggx_conductor_aniso_keeps_its_widths_on_their_axes(mi):
 def test_reported_errors_equal_the_recomputed_ones(mi, model):
     e = to_mitsuba(model)
     d = registry.get(model).defaults()
-    alpha = (float(d["alpha"]) if "alpha" in d
-             else math.sqrt(float(d["alpha_x"]) * float(d["alpha_y"])))
-    wi, wo, _ = cm.default_geometry(alpha)
+    wi, wo, _ = cm.default_geometry(cm.lobe_width(d))  # the geometry to_mitsuba measures on
     step = math.ceil(wi.shape[0] / MAX_MITSUBA_SAMPLES)
     wi, wo = wi[::step], wo[::step]
     src = model_rgb(model, wi, wo)
-    d = registry.get(model).defaults()
     target = src - (d["rho_d"] / math.pi if "rho_d" in d else 0.0)
     p = {k: np.broadcast_to(v, (3,)) if np.ndim(v) else v for k, v in d.items()}
     for kind in cm.MAPPINGS[model]:
