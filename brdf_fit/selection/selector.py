@@ -573,7 +573,7 @@ def select(data: GonioData, candidates: Sequence[str] | None = None, budget: flo
     elif choice is None:
         message = (f"no candidate is within the budget {budget:.4g}: the best, {best_c.model}, "
                    f"leaves a radiance error of {best_c.error:.4g}; give a budget above "
-                   f"that (--budget), or try --family all (every registry model)")
+                   f"that (--budget), or try --family {_SUGGEST_OPEN} (every registry model)")
     else:
         ch = next(c for c in out if c.model == choice)
         message = (f"choice: {choice}, error {ch.error:.4g} (budget {budget:.4g}), the cheapest "
