@@ -394,6 +394,7 @@ def _param_rows(result, channels) -> list[str]:
         se = None if se is None else np.atleast_1d(np.asarray(se, float))
         note = getattr(result, "stderr_note", {}).get(name)
         note = None if note is None else np.atleast_1d(np.asarray(note, object))
+        flagged = set(getattr(result, "undetermined", ()))
         for j, x in enumerate(v):
             label = name if v.size == 1 else (
                 f"{name}[{channels[j]}]" if len(channels) == v.size else f"{name}[{j}]")
@@ -401,9 +402,18 @@ def _param_rows(result, channels) -> list[str]:
             err = "(fixed)" if name in result.fixed else (
                 "" if se is None else
                 f"stderr undefined: {why or 'not finite'}" if not np.isfinite(se[j]) else
-                f"+- {se[j]:.3g}")
+                f"+- {se[j]:.3g}" + ("  UNDETERMINED" if label in flagged else ""))
             rows.append(f"  {label:<16} {x:12.6g}  {err}")
     return rows
+
+
+def _print_undetermined(labels, indent: str = "  ") -> None:
+    """The fit's undetermined entries, with the rule that flags them (or nothing)."""
+    from brdf_fit.fitting.problem import UNDETERMINED_RULE
+
+    if labels:
+        print(f"{indent}undetermined: {', '.join(labels)} ({UNDETERMINED_RULE}; fix them "
+              "(--fix) or measure where they matter)")
 
 
 def _print_fit(result, data, path: str) -> None:
@@ -416,6 +426,7 @@ def _print_fit(result, data, path: str) -> None:
     if result.at_bound:
         print(f"  at an interval end: {', '.join(result.at_bound)} (a limit, not an optimum; "
               "no standard error)")
+    _print_undetermined(result.undetermined)
     status = "yes" if result.converged else f"NO ({result.message})"
     print(f"converged: {status}; steps: {result.steps}; starts: {result.starts}; "
           f"residual rms: {result.residual_rms:.6g}; time: {result.seconds:.2f} s")
@@ -580,9 +591,11 @@ def _read_many(paths, skip_bad: bool):
 
 
 def _batch_rows(paths, res, channels) -> list[dict]:
-    from brdf_fit.fitting.single import json_floats  # loaded with fit_batch already
+    from brdf_fit.fitting.problem import entry_labels  # loaded with fit_batch already
+    from brdf_fit.fitting.single import json_floats
 
     rows = []
+    und = res.undetermined
     for b, path in enumerate(paths):
         rows.append({
             "file": path, "model": res.model_name,
@@ -594,6 +607,10 @@ def _batch_rows(paths, res, channels) -> list[dict]:
             "metric": res.metric, "residual_rms": float(res.residual_rms[b]),
             "n_samples": int(res.n_samples[b]), "channels": list(channels),
             "at_bound": [k for k, v in res.at_bound.items() if np.asarray(v[b]).any()],
+            "undetermined": [
+                lab for k, v in und.items()
+                for lab, bad in zip(entry_labels(k, np.shape(v[b]), channels),
+                                    np.asarray(v[b]).reshape(-1), strict=True) if bad],
         })
     return rows
 
@@ -606,8 +623,9 @@ MIN_SAMPLES_PER_PARAM = 3
 
 
 def _flag_rows(rows) -> None:
-    """Add ``flags`` to each fit-batch row: "not converged", "at bound", "rms > 10x median"
-    (the median over every file of the run) and "few samples"."""
+    """Add ``flags`` to each fit-batch row: "not converged", "at bound", "undetermined: ..."
+    (:data:`brdf_fit.fitting.problem.UNDETERMINED_RULE`), "rms > 10x median" (the median over
+    every file of the run) and "few samples"."""
     if not rows:
         return
     med = float(np.median([r["residual_rms"] for r in rows]))
@@ -618,6 +636,8 @@ def _flag_rows(rows) -> None:
             flags.append("not converged")
         if r["at_bound"]:
             flags.append("at bound")
+        if r.get("undetermined"):
+            flags.append(f"undetermined: {', '.join(r['undetermined'])}")
         if med > 0 and r["residual_rms"] > RMS_FLAG_FACTOR * med:
             flags.append(f"rms > {RMS_FLAG_FACTOR:g}x median")
         if r["n_samples"] < MIN_SAMPLES_PER_PARAM * k:
@@ -652,6 +672,7 @@ def _write_batch_table(rows, path: str) -> None:
                         len(r["channels"]) == a.size) else f"{name}_{j}"
                     d[key if kind == "params" else f"stderr_{key}"] = f"{x:.10g}"
         d["at_bound"] = ";".join(r["at_bound"])
+        d["undetermined"] = ";".join(r.get("undetermined", []))
         d["stderr_note"] = ";".join(f"{k}: {_note_text(v)}" for k, v in r["stderr_note"].items())
         d["flags"] = ";".join(r.get("flags", []))
         flat.append(d)
@@ -817,6 +838,12 @@ def cmd_fit_batch(args) -> int:
                   f"{r['steps']:>5} {r['residual_rms']:10.4g}  {vals}{flag}")
         for msg in bad:
             print(f"  skipped: {msg}")
+        n_und = sum(bool(r["undetermined"]) for r in rows)
+        if n_und:
+            from brdf_fit.fitting.problem import UNDETERMINED_RULE
+
+            print(f"  {n_und} of {len(rows)} fit(s) with undetermined parameters "
+                  f"({UNDETERMINED_RULE})")
         if args.out is not None:
             print(f"wrote {args.out}")
     return 0 if all(r["converged"] for r in rows) and not bad else 1
@@ -845,6 +872,20 @@ def _print_demo(doc: dict) -> None:
         print(f"  {k:>2} {f['model']:<{w}} {f['residual_rms']:10.4g} "
               f"{'yes' if f['converged'] else 'NO':>5} {f['steps']:>5} {f['seconds']:6.2f}s  "
               f"{_short_params(f['params'])}")
+    und = [f for f in doc["fits"] if f.get("undetermined")]
+    if und:
+        from brdf_fit.fitting.problem import UNDETERMINED_RULE
+
+        for f in und:
+            parts = []
+            for lab in f["undetermined"]:
+                name, _, ch = lab.partition("[")
+                j = doc["dataset"]["channels"].index(ch[:-1]) if ch else None
+                v, se = f["params"][name], f["stderr"][name]
+                v, se = (v, se) if j is None else (v[j], se[j])
+                parts.append(f"{lab} = {v:.3g} +- {se:.2g}" if se is not None else lab)
+            print(f"  {f['model']}: UNDETERMINED {', '.join(parts)}")
+        print(f"  (flagged: {UNDETERMINED_RULE})")
     print("\nGGX width alpha: truth " + _fmt(truth["params"]["alpha"]) + "; fitted "
           + ", ".join(f"{k} {v:.4g}" for k, v in doc["ggx_alpha"].items()))
     for c in doc["conversions"]:
@@ -954,7 +995,7 @@ def cmd_convert(args) -> int:
         print(json.dumps(doc, indent=2))
     else:
         _print_convert(doc)
-    return 0 if all(r["converged"] and r["represents"] for r in doc["rows"]) else 1
+    return _conversion_status((r["converged"], r["radiance_error"]) for r in doc["rows"])
 
 
 def _convert_mtl(args) -> int:
@@ -979,10 +1020,11 @@ def _convert_mtl(args) -> int:
         progress(len(mats), len(mats), "done")
     finally:
         bar.close()
+    status = _conversion_status((r.converged, r.error) for r in rows)
     if args.json:
         print(json.dumps({"file": args.file, "materials": [r.to_dict() for r in rows]},
                          indent=2, allow_nan=False))
-        return 0
+        return status
     w = max(len(r.name) for r in rows)
     print(f"{args.file}: {len(rows)} materials; error: relative RMS radiance error of the GGX "
           "material against the MTL material's meaning (brdf_fit.convert.mtl)")
@@ -998,7 +1040,20 @@ def _convert_mtl(args) -> int:
               f"{r.error:7.3g} {ac:>8} {ec:>10}")
         for n in r.notes:
             print(f"  {'':<{w}}   note: {n}")
-    return 0
+    bad = [r.name for r in rows if not (r.converged and r.error <= REPRESENTS_TOL)]
+    if bad:
+        print(f"warning: {len(bad)} of {len(rows)} material(s) not represented by their GGX "
+              f"conversion (radiance error above {REPRESENTS_TOL:g} or fit not converged): "
+              f"{', '.join(bad)}; exit status 1")
+    return status
+
+
+def _conversion_status(results) -> int:
+    """The exit status of every ``convert``, from ``(converged, radiance error)`` per
+    conversion: 0 when each converged and represents its source (error <=
+    :data:`REPRESENTS_TOL`), else 1 (the results are printed all the same): a script can trust
+    a conversion that exits 0."""
+    return 0 if all(c and e is not None and e <= REPRESENTS_TOL for c, e in results) else 1
 
 
 def _progress_callback(enabled: bool, label):
@@ -1192,6 +1247,11 @@ def _print_candidates(sel) -> None:
               f"{c.aic:10.1f} {c.bic:10.1f} {chi2:>9} {'yes' if c.converged else 'no':>5}  "
               f"{'in' if c.within_budget else 'out':>6} {'*' if c.pareto else ' ':>6} "
               f"{checks_txt} {mark}")
+    und = [f"{c.model}: {', '.join(c.undetermined)}" for c in sel.candidates if c.undetermined]
+    if und:
+        from brdf_fit.fitting.problem import UNDETERMINED_RULE
+
+        print(f"  undetermined by the data ({UNDETERMINED_RULE}): " + "; ".join(und))
 
 
 def _select_scene(args, names, checks) -> int:

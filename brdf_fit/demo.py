@@ -18,6 +18,7 @@ import numpy as np
 
 from brdf_fit import plot, registry
 from brdf_fit.convert import phong as cp
+from brdf_fit.fitting.problem import UNDETERMINED_RULE
 from brdf_fit.fitting.single import fit
 from brdf_fit.selection import select
 from brdf_fit.verify.checks import run_checks
@@ -156,6 +157,7 @@ def run_demo(out_dir, plots: bool = True, progress: bool = True) -> dict:
         "ranking": [r.model_name for r in ranked],
         "best": best.model_name,
         "fits": [r.to_dict() for r in ranked],
+        "undetermined_rule": UNDETERMINED_RULE,
         "conversions": _demo_conversions(results),
         "ggx_alpha": {n: float(np.asarray(results[n].params["alpha"]))
                       for n in ("ggx-conductor", "ggx", "beckmann") if n in results},

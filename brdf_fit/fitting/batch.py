@@ -151,6 +151,7 @@ from brdf_fit.fitting.problem import (
     model_source,
     resolve_free,
     stderr_notes,
+    undetermined,
 )
 from brdf_fit.fitting.single import SOLVERS, json_floats
 
@@ -197,6 +198,14 @@ class BatchFitResult:
         values put back; a registry model: ``entry.build`` of them)."""
         return self.source.build({k: jnp.asarray(v[b]) for k, v in self.params.items()})
 
+    @property
+    def undetermined(self) -> dict[str, np.ndarray]:
+        """Per free parameter, (B, ...) bool: the data do not determine that entry
+        (:func:`brdf_fit.fitting.problem.undetermined`, as
+        :attr:`brdf_fit.fitting.single.FitResult.undetermined`)."""
+        return {k: undetermined(self.params[k], se, self.stderr_note.get(k))
+                for k, se in self.stderr.items()}
+
     def lane_steps(self) -> int:
         """Solver iterations paid for: per group, its lane count times the iterations its
         while_loop ran, summed over groups and chunks (padding included)."""
@@ -208,6 +217,7 @@ class BatchFitResult:
             "params": {k: np.asarray(v).tolist() for k, v in self.params.items()},
             "stderr": {k: json_floats(v) for k, v in self.stderr.items()},
             "stderr_note": {k: np.asarray(v).tolist() for k, v in self.stderr_note.items()},
+            "undetermined": {k: np.asarray(v).tolist() for k, v in self.undetermined.items()},
             "converged": self.converged.tolist(),
             "steps": self.steps.tolist(),
             "loss": self.loss.tolist(),

@@ -87,6 +87,7 @@ __all__ = [
     "metric_parts", "robust_residual", "ROBUST", "ROBUST_SCALE",
     "METRICS", "METRIC_H", "RELATIVE_FLOOR", "DATA_SCALE_FLOOR", "EDGE", "AT_BOUND_REL",
     "RANK_RCOND", "DEAD_COLUMN_REL", "NULL_SHARE", "STDERR_NOTES", "stderr_codes", "stderr_notes",
+    "UNDETERMINED_REL_STDERR", "UNDETERMINED_RULE", "undetermined", "entry_labels",
 ]
 
 METRICS = ("log", "cuberoot", "relative", "absolute", "huber", "cauchy")
@@ -236,6 +237,45 @@ def stderr_codes(A, finite=None, xp=np):
     implicated = xp.any(small[None, :] & (xp.abs(V) > NULL_SHARE), axis=-1)
     code = xp.where(dead | implicated, 2, 0)
     return xp.where(finite, code, 3)
+
+
+#: A fitted parameter is flagged *undetermined* by the data when its standard error exceeds
+#: this fraction of its magnitude: its ~95% interval (+-1.96 sigma) then spans more than +-49%
+#: of the value, so the data do not fix it to within a factor of about two. A statement about
+#: the data, not the optimiser: such a value can land far from the truth while the fit is at
+#: the noise (the demo's gold: F0 in red is ~0.99 whatever (eta, k) give it, and the fit returns
+#: k[R] = 1.17 +- 0.71 and eta[R] = 0.0032 +- 0.0021 against a truth of 7.5 and 0.060,
+#: relative errors 0.60 and 0.65, where every other parameter of that fit is below 0.03).
+#: A parameter whose standard error is undefined because it is not identifiable (code 2 of
+#: :func:`stderr_codes`) is undetermined too; one at an interval end is reported as at bound.
+UNDETERMINED_REL_STDERR = 0.25
+UNDETERMINED_RULE = (f"relative standard error > {UNDETERMINED_REL_STDERR:g}, or not "
+                     "identifiable: the data do not determine the value")
+
+
+def undetermined(value, stderr, note=None) -> np.ndarray:
+    """Boolean mask (the shape of ``value``): the entries the data do not determine
+    (:data:`UNDETERMINED_REL_STDERR`): a finite standard error above that fraction of ``|value|``,
+    or an undefined one whose ``note`` (:func:`stderr_notes`) says "not identifiable"."""
+    v = np.asarray(value, float)
+    se = np.broadcast_to(np.asarray(stderr, float), v.shape)
+    with np.errstate(invalid="ignore"):
+        big = np.isfinite(se) & (se > UNDETERMINED_REL_STDERR * np.abs(v))
+    if note is not None:
+        n = np.broadcast_to(np.asarray(note, object), v.shape)
+        big = big | (n == STDERR_NOTES[2])
+    return big
+
+
+def entry_labels(name: str, shape, channels=()) -> list[str]:
+    """Labels of a parameter's entries, flattened: ``name`` for a scalar, ``name[R]`` per channel
+    when the size matches ``channels``, else ``name[j]``."""
+    size = int(np.prod(shape)) if len(shape) else 1
+    if not len(shape) or size == 1:
+        return [name]
+    if len(channels) == size:
+        return [f"{name}[{c}]" for c in channels]
+    return [f"{name}[{j}]" for j in range(size)]
 
 
 def stderr_notes(codes, shape=None) -> np.ndarray:

@@ -67,10 +67,12 @@ from brdf_fit.fitting.problem import (
     Transform,
     at_bound,
     check_choice,
+    entry_labels,
     model_source,
     resolve_free,
     stderr_codes,
     stderr_notes,
+    undetermined,
 )
 
 __all__ = ["FitResult", "fit", "solve", "covariance", "covariance_normal", "METRICS", "SOLVERS",
@@ -194,6 +196,10 @@ class FitResult:
     #: column or a rank-deficient direction of ``J^T J``,
     #: :func:`brdf_fit.fitting.problem.stderr_codes`), "non-finite normal equations"
     stderr_note: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
+    #: entries the data do not determine (:func:`brdf_fit.fitting.problem.undetermined`:
+    #: relative standard error above :data:`~brdf_fit.fitting.problem.UNDETERMINED_REL_STDERR`,
+    #: or not identifiable), labelled ``name`` or ``name[channel]``, e.g. ``("eta[R]", "k[R]")``
+    undetermined: tuple[str, ...] = ()
 
     def to_dict(self) -> dict:
         def tolist(v):
@@ -215,6 +221,7 @@ class FitResult:
             "seconds": round(float(self.seconds), 4),
             "starts": int(self.starts),
             "at_bound": list(self.at_bound),
+            "undetermined": list(self.undetermined),
             "message": self.message,
             "checks": [c.to_dict() for c in self.checks],
             # only where some standard error is undefined (null in "stderr"): the reasons
@@ -553,6 +560,11 @@ def fit(
         stderr_note=notes,
         at_bound=tuple(n for n, tr in zip(free, layout.transforms, strict=True)
                        if at_bound(tr, params[n]).any()),
+        undetermined=tuple(
+            lab for n, se in stderr.items()
+            for lab, bad in zip(entry_labels(n, np.shape(params[n]), tuple(data.channels)),
+                                undetermined(params[n], se, notes.get(n)).reshape(-1),
+                                strict=True) if bad),
     )
     if checks:
         from brdf_fit.verify.checks import run_checks

@@ -304,6 +304,9 @@ class Candidate:
     #: why the candidate has no fit ("" when it has one): e.g. a fit whose optimum breaks a
     #: joint constraint of the model (modified Phong's rho_d + rho_s <= 1)
     message: str = ""
+    #: entries of the fit the data do not determine (as
+    #: :attr:`brdf_fit.fitting.single.FitResult.undetermined`)
+    undetermined: tuple = ()
     fitted: object = None  # the fitted model object (not serialised)
 
     def to_dict(self) -> dict:
@@ -322,6 +325,7 @@ class Candidate:
             "pareto": self.pareto, "converged": self.converged,
             "reduced_chi2": self.reduced_chi2, "checks": self.checks,
             "seconds": round(self.seconds, 3), "message": self.message,
+            "undetermined": list(self.undetermined),
         }
 
 
@@ -461,7 +465,7 @@ def _fit_candidate(e, plain, data, n_res, checks, max_steps, multistart, seed, c
         model=e.name, params=r.params, stderr=r.stderr, error=err,
         cost_ns=cost, n_params=k, aic=aic, bic=bic, cost_rel=committed_costs().get(e.name),
         converged=bool(r.converged), reduced_chi2=chi2, checks=status,
-        seconds=time.perf_counter() - t0, fitted=r.model)
+        seconds=time.perf_counter() - t0, undetermined=r.undetermined, fitted=r.model)
 
 
 #: families to suggest when nothing represents a material, by what the data showed

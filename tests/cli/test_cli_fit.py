@@ -89,7 +89,7 @@ def test_round_trip_csv(csv_data, capsys):
     fields = FitResult.__dataclass_fields__
     assert set(r) == {"model", "params", "stderr", "fixed", "converged", "steps", "metric",
                       "loss", "residual_rms", "n_samples", "n_params", "seconds", "starts",
-                      "message", "checks", "at_bound"}
+                      "message", "checks", "at_bound", "undetermined"}
     assert {"model_name", "params", "stderr", "converged", "metric", "residual_rms"} <= set(fields)
     assert r["model"] == "ggx" and r["metric"] == "log" and r["n_params"] == 4
     for k, v in TRUTH.items():
@@ -199,6 +199,9 @@ def test_demo_plumbing(tmp_path, capsys, monkeypatch):
     assert doc["best"] == "modified-phong" and doc["ggx_alpha"] == {}
     assert [c["model"] for c in doc["conversions"]] == ["modified-phong", "blinn-phong-approx"]
     assert doc["plots"] == [] and doc["fits"][0]["checks"] == doc["checks"]
+    assert doc["undetermined_rule"].startswith("relative standard error > ")
+    assert all(isinstance(f["undetermined"], list) for f in doc["fits"])
+    assert all("undetermined" in c for c in doc["selection"]["candidates"])
 
 
 def test_plots(csv_data, tmp_path):

@@ -228,11 +228,22 @@ def test_cli_mtl_to_ggx_json_and_errors(tmp_path, capsys):
     p = tmp_path / "two.mtl"
     p.write_text("newmtl wall\nKd 0.7 0.7 0.6\nillum 1\n\nnewmtl paint\nKd 0.5 0.1 0.1\n"
                  "Ks 0.4 0.4 0.4\nNs 100\nillum 2\n")
-    assert main(["convert", "mtl-to-ggx", str(p), "--json", "--quiet"]) == 0
+    # one rule for every convert (as phong-to-ggx): exit 1 when some conversion does not
+    # represent its source (radiance error above REPRESENTS_TOL, or not converged); the results
+    # are printed all the same
+    assert main(["convert", "mtl-to-ggx", str(p), "--json", "--quiet"]) == 1
     doc = json.loads(capsys.readouterr().out)
     assert [m["name"] for m in doc["materials"]] == ["wall", "paint"]
     paint = doc["materials"][1]
     assert paint["target"] == "ggx-plastic" and paint["error"] <= paint["error_closed"]
+    assert paint["error"] > REPRESENTS_TOL
+    assert main(["convert", "mtl-to-ggx", str(p), "--quiet"]) == 1
+    out = capsys.readouterr().out
+    assert "warning: 1 of 2 material(s) not represented" in out and ": paint; exit status 1" in out
+    wall = tmp_path / "wall.mtl"
+    wall.write_text("newmtl wall\nKd 0.7 0.7 0.6\nillum 1\n")
+    assert main(["convert", "mtl-to-ggx", str(wall), "--quiet"]) == 0
+    assert "warning" not in capsys.readouterr().out
     bad = tmp_path / "bad.mtl"
     bad.write_text("newmtl x\nKd 0.5 0.5\n")
     for argv, fragment in ((["mtl-to-ggx", str(bad)], f"{bad}:2:"),
