@@ -859,12 +859,15 @@ def _short_params(params: dict) -> str:
 def _print_demo(doc: dict) -> None:
     ds = doc["dataset"]
     truth = doc["truth"]
+    print(f"brdf-fit demo: {doc['summary']}\n")
     print(f"Synthetic gonioreflectometer data: {truth['model']} "
           f"({_short_params(truth['params'])}), {ds['plan']['name']} plan, {ds['n_samples']} "
           f"samples x {len(ds['channels'])} channels, 1% lognormal noise, seed "
           f"{doc['recipe']['seed']}")
     unit = " [sigma]" if doc["residual_units"] == "sigma" else ""
-    print(f"\nModels ranked by residual rms ({doc['metric']} metric{unit}; ~1 = at the noise):")
+    at_once = doc.get("fit_workers", 1)
+    print(f"\nModels ranked by residual rms ({doc['metric']} metric{unit}; ~1 = at the noise"
+          + (f"; times with {at_once} fits at a time" if at_once > 1 else "") + "):")
     w = max(len(f["model"]) for f in doc["fits"])
     print(f"  {'#':>2} {'model':<{w}} {'rms':>10} {'conv':>5} {'steps':>5} {'time':>7}  "
           "parameters")
@@ -897,8 +900,10 @@ def _print_demo(doc: dict) -> None:
     sel = doc.get("selection")
     if sel:
         committed = str(sel.get("cost_rule", "")).startswith("committed")
-        print("\nModel selection (brdf_fit.select; error: relative RMS of f cos(theta_i), each "
-              "model refitted in it; " + (
+        refit = ("each model refitted in it" if "not refitted" not in sel["error_definition"]
+                 else "of the fits above, not refitted")
+        print("\nModel selection (brdf_fit.select; error: relative RMS of f cos(theta_i), "
+              + refit + "; " + (
                   "the cheapest within budget by the committed cost, x Lambert from "
                   "brdf_fit/resources/catalogue_cost.json; ns/eval: this run's live timing):"
                   if committed else "cost measured in this run):"))

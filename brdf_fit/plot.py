@@ -42,12 +42,13 @@ def _channel(data: GonioData, channel) -> int:
 
 
 def _eval(model, wi, wo) -> np.ndarray:
-    """``model.eval`` as one jitted call (eager evaluation compiles every operation apart)."""
-    import jax
+    """``model.eval`` as one compiled call (:func:`brdf_fit.models._base.evaluate`: shared by
+    every model of one structure and shape, where a closure would compile once per model)."""
     import jax.numpy as jnp
 
-    v = np.asarray(jax.jit(lambda a, b: model.eval(a, b))(jnp.asarray(wi), jnp.asarray(wo)),
-                   dtype=float)
+    from brdf_fit.models._base import evaluate
+
+    v = np.asarray(evaluate(model, jnp.asarray(wi), jnp.asarray(wo)), dtype=float)
     return v[:, None] if v.ndim == 1 else v
 
 

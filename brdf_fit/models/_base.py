@@ -184,3 +184,12 @@ def astype(model, dtype):
         return x
 
     return jax.tree_util.tree_map(cast, model)
+
+
+@eqx.filter_jit
+def evaluate(model, wi, wo):
+    """``model.eval(wi, wo)`` as one compiled program (shared by every model of the same
+    structure and argument shapes). Called eagerly, ``eval`` dispatches each operation on its
+    own, and each compiles on first use: 3.4 s for one evaluation of ggx-conductor (complex
+    Fresnel) in a fresh process, against 0.3 s compiled whole (AMD EPYC 2 cores, measured)."""
+    return model.eval(wi, wo)

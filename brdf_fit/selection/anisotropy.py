@@ -44,6 +44,7 @@ from brdf_fit.core.microfacet import GGX, SmithHeightCorrelated
 from brdf_fit.data import GonioData
 from brdf_fit.fitting.problem import FitError
 from brdf_fit.fitting.single import fit
+from brdf_fit.models._base import evaluate
 from brdf_fit.models.lambert import Lambert
 from brdf_fit.models.microfacet_brdf import MicrofacetBRDF
 from brdf_fit.models.mixture import Mixture
@@ -92,7 +93,7 @@ def _probe(widths, rho, f0) -> Mixture:
 def _radiance_error(data: GonioData, model) -> float:
     w = np.ones_like(data.value) if data.weight is None else np.asarray(data.weight)
     c = np.clip(data.wi[:, 2:3], 0.0, None)
-    m = np.asarray(model.eval(jnp.asarray(data.wi), jnp.asarray(data.wo)), np.float64)
+    m = np.asarray(evaluate(model, jnp.asarray(data.wi), jnp.asarray(data.wo)), np.float64)
     m = np.broadcast_to(m[:, None] if m.ndim == 1 else m, data.value.shape)
     num = float(np.sum(w * ((m - data.value) * c) ** 2))
     den = float(np.sum(w * (data.value * c) ** 2))

@@ -63,6 +63,7 @@ from brdf_fit.core.validate import ParameterError
 from brdf_fit.data import DataError, GonioData
 from brdf_fit.fitting.problem import FitError
 from brdf_fit.io.mtl import MtlError, read_mtl
+from brdf_fit.models._base import evaluate
 from brdf_fit.selection.anisotropy import THRESHOLD as ANISO_THRESHOLD
 from brdf_fit.selection.anisotropy import AnisotropyTest
 from brdf_fit.selection.selector import (
@@ -237,7 +238,7 @@ def _materials_of(entry: dict, path: str, line: int, base: str, geom, skip_bad: 
                 raise ParameterError(f"{e.name} is a delta lobe: it has no samples to select on")
         except (KeyError, ParameterError, ValueError, TypeError) as exc:
             raise SceneError(path, line, f"model {src}: {exc}") from None
-        vals = m.eval(jnp.asarray(wi), jnp.asarray(wo))
+        vals = evaluate(m, jnp.asarray(wi), jnp.asarray(wo))
         return [SceneMaterial(name or e.name, kind, e.name, line,
                               _synth(vals, wi, wo, f"registry {e.name}"),
                               anisotropic=bool(m.is_anisotropic()))], []
@@ -256,7 +257,7 @@ def _materials_of(entry: dict, path: str, line: int, base: str, geom, skip_bad: 
             mm = by[n]
             meaning = cmtl.mtl_model(mm)
             built = meaning.build()
-            vals = built.eval(jnp.asarray(wi), jnp.asarray(wo))
+            vals = evaluate(built, jnp.asarray(wi), jnp.asarray(wo))
             out.append(SceneMaterial(n, kind, mm.where, line,
                                      _synth(vals, wi, wo, f"MTL {mm.where} as {meaning.name}"),
                                      list(meaning.notes),

@@ -45,7 +45,7 @@ from brdf_fit.core import quadrature
 from brdf_fit.core.fresnel import ConstantFresnel
 from brdf_fit.core.microfacet import VCavity, vcavity_pdf_visible
 from brdf_fit.models import MicrofacetBRDF
-from brdf_fit.models._base import AbstractBRDF
+from brdf_fit.models._base import AbstractBRDF, evaluate
 from brdf_fit.models._lobes import sample_weight
 from brdf_fit.verify import albedo
 from brdf_fit.verify.chi2 import chi2_test_brdf
@@ -245,14 +245,9 @@ def _random_pairs(n, seed, lo=1e-3):
     return jnp.asarray(dirs()), jnp.asarray(dirs())
 
 
-@eqx.filter_jit
-def _eval(model, wi, wo):
-    return model.eval(wi, wo)
-
-
 def check_non_negative(model, name="model", n=4096, seed=0) -> CheckResult:
     wi, wo = _random_pairs(n, seed)
-    f = np.asarray(_eval(model, jnp.concatenate([wi, wo]), jnp.concatenate([wo, wo])))
+    f = np.asarray(evaluate(model, jnp.concatenate([wi, wo]), jnp.concatenate([wo, wo])))
     fmin = float(np.min(f))
     return CheckResult(name, "non-negative", fmin >= 0.0, fmin, 0.0,
                        {"n_pairs": 2 * n, "n_negative": int(np.sum(f < 0))})
@@ -263,8 +258,8 @@ def check_reciprocity(model, name="model", n=4096, seed=1, tol=None) -> CheckRes
     if model.is_delta:
         return _na(name, "reciprocity", "delta lobe: not evaluable pointwise")
     wi, wo = _random_pairs(n, seed)
-    a = np.asarray(_eval(model, wi, wo))
-    b = np.asarray(_eval(model, wo, wi))
+    a = np.asarray(evaluate(model, wi, wo))
+    b = np.asarray(evaluate(model, wo, wi))
     scale = max(float(np.max(np.abs(a))), 1e-300)
     err = np.abs(a - b) / scale
     worst = int(np.argmax(err.reshape(n, -1).max(-1)))

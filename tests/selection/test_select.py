@@ -184,3 +184,38 @@ def test_families_name_registry_entries_and_select_takes_one(monkeypatch):
     s = select(dataset("lambert"), family="pair", checks=(), anisotropy=False)
     assert [c.model for c in s.candidates if c.message] == []
     assert {c.model for c in s.candidates} == {"lambert", "ggx"} and s.choice == "lambert"
+
+
+def test_workers_and_given_fits():
+    """Two candidates fitted at once (threads) give the sequential selection's numbers exactly;
+    fits given to select are judged as they are (no refit), and the error definition says so.
+    """
+    from brdf_fit.fitting.single import fit
+
+    d = dataset("plastic")
+    names = ["lambert", "ggx"]
+    one = select(d, names, checks=(), anisotropy=False)
+    two = select(d, names, checks=(), anisotropy=False, workers=2)
+    for a, b in zip(one.candidates, two.candidates, strict=True):
+        assert a.model == b.model and a.error == b.error and a.aic == b.aic
+        assert np.isfinite(b.cost_ns) and b.cost_ns > 0  # measured after the fits
+        for k in a.params:
+            np.testing.assert_array_equal(a.params[k], b.params[k])
+    assert one.choice == two.choice
+    # given fits: here the selection's own fits (its metric, without sigma), so its errors
+    import dataclasses
+
+    plain = dataclasses.replace(d, sigma=None)
+    fits = {n: fit(plain, n, metric="absolute", cos_weight=True) for n in names}
+    given = select(d, fits=fits, checks=())
+    assert "not refitted" in given.error_definition and given.anisotropy is None
+    for a, b in zip(one.candidates, given.candidates, strict=True):
+        assert a.model == b.model and b.error == pytest.approx(a.error, rel=1e-12)
+    # a log-metric fit judged in the radiance error is no better than the radiance fit
+    logged = select(d, fits={n: fit(d, n) for n in names}, checks=())
+    for a, b in zip(one.candidates, logged.candidates, strict=True):
+        assert b.error >= a.error * (1 - 1e-9)
+    with pytest.raises(ValueError, match="not both"):
+        select(d, names, fits=fits)
+    with pytest.raises(ValueError, match="workers"):
+        select(d, names, workers=0)
