@@ -5,7 +5,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: setup demo test test-all lint bench clean
+.PHONY: setup demo test test-all lint bench docs clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -30,6 +30,16 @@ test: $(STAMP)          ## the default test suite (what CI runs)
 test-all: $(STAMP)      ## including the long statistical/convergence tests
 	$(BIN)/python -m pytest -q $(XDIST) -m "slow or not slow"
 
+DOCS_STAMP := $(VENV)/.docs-installed
+
+$(DOCS_STAMP): $(STAMP) pyproject.toml
+	$(BIN)/python -m pip install --quiet -e '.[docs]'
+	touch $(DOCS_STAMP)
+
+docs: $(DOCS_STAMP)     ## the documentation site in ./site (warnings are errors; tutorials run)
+	$(BIN)/python docs/_prepare.py
+	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/mkdocs build --strict
+
 lint: $(STAMP)
 	$(BIN)/ruff check brdf_fit data_synth tests benchmarks
 
@@ -44,4 +54,4 @@ bench: $(STAMP)         ## re-run the committed benchmarks (results in benchmark
 	$(BIN)/python benchmarks/report.py   # results/REPORT.md + results/report/*.png
 
 clean:
-	rm -rf $(VENV) build *.egg-info .pytest_cache
+	rm -rf $(VENV) build site *.egg-info .pytest_cache

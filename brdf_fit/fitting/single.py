@@ -46,6 +46,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
@@ -53,7 +54,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from brdf_fit.core.validate import ParameterError
+from brdf_fit.core.validate import ParameterError, PrecisionWarning
 from brdf_fit.data import GonioData
 from brdf_fit.fitting import guess as _guess
 from brdf_fit.fitting._export import ExportedCall
@@ -462,6 +463,15 @@ def fit(
     free = resolve_free(source, fix, init, free)  # unknown names raise with the valid list
     data.validate()
     dtype = np.dtype(jax.dtypes.canonicalize_dtype(np.float64))  # float32 without x64
+    if dtype != np.float64:
+        # a first-contact trap: the README's gold fit from a neutral start, run in a fresh
+        # interpreter without x64, ended at eta = 0 (a constraint error) in float32, and fits
+        # to the noise in float64
+        warnings.warn(PrecisionWarning(
+            f"fit({source.name}): jax_enable_x64 is off, so this fit runs in float32, whose "
+            "solver tolerances and standard errors are not trustworthy; call "
+            "jax.config.update('jax_enable_x64', True) first (the command line does)"),
+            stacklevel=2)
     arrays, n_used = _arrays(data, max_zenith_deg, dtype)
     arrays = _pad(arrays, n_used, pad_to)
     C = data.n_channels

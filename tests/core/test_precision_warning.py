@@ -45,3 +45,19 @@ def test_float32_albedo_warns_and_float64_does_not():
         e32 = directional_albedo(astype(m, jnp.float32), jnp.asarray(wo, jnp.float32))
     e64 = directional_albedo(m, wo)  # no warning (warnings are errors here)
     assert abs(float(e32[0]) - float(e64[0])) < 1e-3
+
+
+def test_a_float32_fit_says_so():
+    """Without x64 a fit runs in float32 (the README's gold fit from a neutral start failed
+    there and converges in float64): fit warns, naming the switch."""
+    import jax
+
+    from brdf_fit.fitting.single import fit
+    from data_synth.recipes import synthesize
+
+    data = synthesize({"model": "lambert", "params": {"rho": [0.5, 0.4, 0.3]}, "seed": 1,
+                       "plan": {"name": "in_plane", "args": {"theta_i_deg": [0, 30],
+                                                             "theta_o_deg": [-30, 0, 30]}}})
+    with jax.enable_x64(False), pytest.warns(PrecisionWarning, match="jax_enable_x64 is off"):
+        r = fit(data, "lambert")
+    assert np.asarray(r.params["rho"]).dtype == np.float32
