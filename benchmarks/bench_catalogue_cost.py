@@ -22,7 +22,7 @@ per-call overheads included); treat them as an ordering only.
 
 Writes ``catalogue_cost.md`` and ``catalogue_cost.json`` to ``--out`` and the JSON also to
 ``brdf_fit/resources/catalogue_cost.json``, which the catalogue table reads
-(``brdf-fit catalogue --write-readme README.md``).
+(``brdf-fit catalogue --write-readme docs/models.md``).
 
 ``--entries NAME ...`` times only those entries and ``lambert`` (same method, ratios against
 ``lambert`` in that run) and merges their rows into ``brdf_fit/resources/catalogue_cost.json``
