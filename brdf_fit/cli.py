@@ -708,6 +708,14 @@ def _fit_batch_streamed(args, entry, fix, init) -> int:
 
     if args.skip_bad:
         raise CLIError("--skip-bad is not available with --out-dir (every file is needed)")
+    if args.processes is not None and args.processes > 1:
+        return _fit_batch_processes(args)
+    if args.values is not None:
+        return _fit_batch_values(args, entry, fix, init, fit_stream)
+    if not args.data:
+        raise CLIError("fit-batch needs data files (or --values FILE.npy --geometry FILE.npz "
+                       "with --out-dir)")
+    shard, sync = _join_run(args)
     out = pathlib.Path(args.out_dir)
     if out.exists() and not out.is_dir():
         raise CLIError(f"{args.out_dir}: --out-dir names an existing file, not a folder")
@@ -716,7 +724,7 @@ def _fit_batch_streamed(args, entry, fix, init) -> int:
         raise CLIError(f"{args.out_dir}: cannot write: folder {str(parent)!r} does not exist")
     if args.out is not None:
         check_output_file(args.out, (".csv", ".json"), "--out")
-    if (out / "manifest.json").exists() and not args.resume:
+    if (out / "manifest.json").exists() and not args.resume and shard is None:
         raise CLIError(f"{args.out_dir}: holds a previous run; --resume continues it (or "
                        "choose a new folder)")
     paths = list(args.data)
@@ -745,13 +753,16 @@ def _fit_batch_streamed(args, entry, fix, init) -> int:
                          enabled=not args.quiet)
     try:
         res = fit_stream(source, entry.name, out, n_problems=len(paths),
-                         block_size=args.block_size, resume=args.resume, progress=bar,
+                         block_size=args.block_size, resume=args.resume or shard is not None,
+                         progress=bar, shard=shard, sync=sync,
                          meta={"files": digest, "n_files": len(paths)},
                          fix=fix, init=init, metric=args.metric, cos_weight=args.cos_weight,
                          max_zenith_deg=args.max_zenith_deg, max_steps=args.max_steps,
                          guess=args.guess)
     finally:
         bar.close()
+    if shard is not None and shard[0] != 0:
+        return 0  # the lead (process 0) reports the run
     (out / "files.txt").write_text("\n".join(paths) + "\n")
     full = res.result()
     rows = _batch_rows(paths, full, first.channels)
@@ -776,10 +787,7 @@ def _fit_batch_streamed(args, entry, fix, init) -> int:
     return 0 if conv == 1.0 else 1
 
 
-def cmd_fit_batch(args) -> int:
-    _x64()
-    from brdf_fit.fitting.batch import fit_batch
-
+def _fit_batch_setup(args):
     reg = _registry()
     entry = reg.get(args.model)
     fix = parse_params(args.fix, entry, "--fix")
@@ -787,10 +795,182 @@ def cmd_fit_batch(args) -> int:
     both = sorted(set(fix) & set(init))
     if both:
         raise CLIError(f"parameter(s) {', '.join(both)} given both --fix and --init")
+    return entry, fix, init
+
+
+def _fit_batch_values(args, entry, fix, init, fit_stream) -> int:
+    """``fit-batch --values V.npy --geometry G.npz --out-dir DIR``: N problems on one shared
+    geometry, streamed from a memory-mapped array; the parameter maps (``maps/params_NAME.npy``
+    (N, ...), ``maps/stderr_NAME.npy``, ``maps/converged.npy``, ``maps/undetermined_NAME.npy``)
+    are written when every block is."""
+    import pathlib
+
+    if args.data:
+        raise CLIError("give data files or --values, not both")
+    if args.geometry is None:
+        raise CLIError("--values needs --geometry FILE.npz (arrays wi and wo, (M, 3))")
+    try:
+        values = np.load(args.values, mmap_mode="r")
+    except (OSError, ValueError) as e:
+        raise CLIError(f"{args.values}: cannot read a .npy array ({e})") from None
+    try:
+        with np.load(args.geometry) as g:
+            wi, wo = np.asarray(g["wi"], float), np.asarray(g["wo"], float)
+    except (OSError, ValueError, KeyError) as e:
+        raise CLIError(f"{args.geometry}: needs arrays wi and wo ({e})") from None
+    if values.ndim not in (2, 3) or wi.shape != (values.shape[1], 3) or wo.shape != wi.shape:
+        raise CLIError(f"{args.values}: shape {values.shape} with wi {wi.shape}, wo "
+                       f"{wo.shape}: expected (N, M[, C]) values and (M, 3) directions")
+    if np.any(wi[:, 2] < 0) or np.any(wo[:, 2] < 0):
+        raise CLIError(f"{args.geometry}: a direction below the horizon (z < 0)")
+    out = pathlib.Path(args.out_dir)
+    if (out / "manifest.json").exists() and not args.resume and not (
+            args.coordinator or args.cluster):
+        raise CLIError(f"{args.out_dir}: holds a previous run; --resume continues it (or "
+                       "choose a new folder)")
+    shard, sync = _join_run(args)
+    bar = _BatchProgress(f"{entry.name}, {values.shape[0]} problems of {values.shape[1]} samples",
+                         enabled=not args.quiet)
+    try:
+        res = fit_stream(values, entry.name, out, wi=wi, wo=wo, block_size=args.block_size,
+                         resume=args.resume or shard is not None, progress=bar, shard=shard,
+                         sync=sync, meta={"values": str(args.values), "shape": values.shape},
+                         fix=fix, init=init, metric=args.metric, cos_weight=args.cos_weight,
+                         max_zenith_deg=args.max_zenith_deg, max_steps=args.max_steps,
+                         guess=args.guess)
+    finally:
+        bar.close()
+    if shard is not None and shard[0] != 0:
+        return 0  # the lead (process 0) reports the run
+    full = res.result()
+    maps = out / "maps"
+    maps.mkdir(exist_ok=True)
+    arrays = {f"params_{k}": v for k, v in full.params.items()}
+    arrays.update({f"stderr_{k}": v for k, v in full.stderr.items()})
+    arrays.update({f"undetermined_{k}": v for k, v in full.undetermined.items()})
+    arrays.update({"converged": full.converged, "residual_rms": full.residual_rms})
+    for name, a in arrays.items():
+        np.save(maps / f"{name}.npy", np.asarray(a))
+    conv = float(np.mean(full.converged))
+    summary = {"model": entry.name, "out_dir": str(out), "problems": int(values.shape[0]),
+               "blocks": res.n_blocks, "block_size": res.block_size, "fitted": res.fitted,
+               "skipped": res.skipped, "converged": conv,
+               "maps": sorted(f"maps/{n}.npy" for n in arrays), "seconds": round(res.seconds, 3)}
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    else:
+        print(f"{entry.name} fitted to {values.shape[0]} problems, metric {args.metric}, in "
+              f"{res.n_blocks} block(s) of {res.block_size} ({len(res.fitted)} fitted now, "
+              f"{len(res.skipped)} already written); converged {100 * conv:.2f}%")
+        print(f"wrote {out}/ (block_*.npz, manifest.json, maps/*.npy)")
+    return 0 if conv == 1.0 else 1
+
+
+def _join_run(args):
+    """``(shard, sync)`` for fit_stream: this process's place in a multi-process run (joined
+    here, before any JAX computation), or ``(None, None)`` for a single process."""
+    given = [args.coordinator is not None, args.num_processes is not None,
+             args.process_id is not None]
+    if not (any(given) or args.cluster):
+        return None, None
+    if any(given) and args.cluster:
+        raise CLIError("--cluster reads the run from the environment: not with --coordinator")
+    if any(given) and not all(given):
+        raise CLIError("--coordinator, --num-processes and --process-id go together")
+    from brdf_fit.fitting import distributed
+
+    kw = {} if args.join_timeout is None else {"timeout_s": args.join_timeout}
+    index, count = distributed.initialize(args.coordinator, args.num_processes,
+                                          args.process_id, **kw)
+    return (index, count), distributed.barrier
+
+
+def _fit_batch_processes(args) -> int:
+    """``fit-batch --out-dir DIR --processes N``: N local processes on one machine, joined by
+    JAX's multi-process runtime (process 0 hosts the coordinator on a free local port); this
+    process launches them, shows the blocks written, and reports the folder when all are done."""
+    import pathlib
+    import socket
+    import subprocess
+    import time
+
+    out = pathlib.Path(args.out_dir)
+    if (out / "manifest.json").exists() and not args.resume:
+        raise CLIError(f"{args.out_dir}: holds a previous run; --resume continues it (or "
+                       "choose a new folder)")
+    if args.coordinator or args.cluster or args.process_id is not None:
+        raise CLIError("--processes starts its own processes: not with --coordinator/--cluster")
+    with socket.socket() as sock:  # a free port for process 0's coordination service
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    argv, skip = [], False
+    for a in sys.argv[1:] if args._argv is None else args._argv:
+        if skip:
+            skip = False
+            continue
+        if a == "--processes":
+            skip = True
+            continue
+        if a == "--out":  # the report (and its table) is this process's
+            skip = True
+            continue
+        if a.startswith(("--processes=", "--out=")) or a in ("--resume", "--json", "--quiet"):
+            continue
+        argv.append(a)
+    n = args.processes
+    procs = [subprocess.Popen([sys.executable, "-m", "brdf_fit.cli", *argv, "--quiet",
+                               "--coordinator", f"127.0.0.1:{port}", "--num-processes", str(n),
+                               "--process-id", str(i)], stdout=subprocess.DEVNULL)
+             for i in range(n)]
+    t0 = time.perf_counter()
+    tty, last, shown = sys.stderr.isatty(), -1.0, None
+    try:
+        while any(p.poll() is None for p in procs):
+            k = len(list(out.glob("block_*.npz"))) if out.is_dir() else 0
+            now = time.perf_counter() - t0
+            # a terminal: one line rewritten; a log: a line when a block lands, or every 10 s
+            if not args.quiet and (tty or k != shown or now - last >= 10):
+                msg = f"fit-batch: {n} processes, {k} block(s) written, {now:.0f} s"
+                print("\r" + msg if tty else msg, end="" if tty else "\n", file=sys.stderr,
+                      flush=True)
+                last, shown = now, k
+            time.sleep(0.5)
+    except KeyboardInterrupt:
+        for p in procs:
+            p.terminate()
+        raise
+    finally:
+        if not args.quiet and tty:
+            print(file=sys.stderr)
+    codes = [p.wait() for p in procs]
+    # 1 is a finished run with some fit not converged (the report below says which); 2 an
+    # error, a negative status a signal
+    if any(c not in (0, 1) for c in codes):
+        bad = ", ".join(f"process {i}: exit status {c}" for i, c in enumerate(codes)
+                        if c not in (0, 1))
+        raise CLIError(f"{bad}; the blocks written are kept in {args.out_dir}: --resume "
+                       "completes the run")
+    # every block is written: the report is a resumed run that fits nothing
+    args.processes, args.resume = None, True
+    return _fit_batch_streamed(args, *_fit_batch_setup(args))
+
+
+def cmd_fit_batch(args) -> int:
+    _x64()
+    from brdf_fit.fitting.batch import fit_batch
+
+    entry, fix, init = _fit_batch_setup(args)
+    if args.values is not None and args.out_dir is None:
+        raise CLIError("--values needs --out-dir (the streamed path writes the maps there)")
+    if args.out_dir is None and not args.data:
+        raise CLIError("fit-batch needs data files")
     if args.out_dir is not None:
         return _fit_batch_streamed(args, entry, fix, init)
     if args.resume or args.block_size is not None:
         raise CLIError("--resume and --block-size need --out-dir (the streamed path)")
+    if (args.processes or args.coordinator or args.cluster or args.num_processes
+            or args.process_id is not None):
+        raise CLIError("several processes need --out-dir (the streamed path)")
     if args.out is not None:
         check_output_file(args.out, (".csv", ".json"), "--out")
     good, bad = _read_many(args.data, args.skip_bad)
@@ -1604,8 +1784,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     fb = sub.add_parser("fit-batch", help="fit one registry model to many data files at once "
                                           "(brdf_fit.fit_batch)")
-    fb.add_argument("data", nargs="+", help="data files (.csv, .npz, MERL .binary); files with "
+    fb.add_argument("data", nargs="*", help="data files (.csv, .npz, MERL .binary); files with "
                                             "equal sample counts are fitted in one batch")
+    fb.add_argument("--values", default=None, metavar="FILE.npy",
+                    help="instead of files, with --out-dir: an (N, M, C) or (N, M) array of "
+                         "N problems (memory-mapped), on one geometry (--geometry); writes "
+                         "parameter maps DIR/maps/*.npy")
+    fb.add_argument("--geometry", default=None, metavar="FILE.npz",
+                    help="with --values: arrays wi and wo, (M, 3) each, in the local frame")
     _fit_options(fb, what="mask")
     fb.add_argument("--skip-bad", action="store_true",
                     help="fit the readable files and list the unreadable ones (default: stop)")
@@ -1621,6 +1807,20 @@ def build_parser() -> argparse.ArgumentParser:
     fb.add_argument("--resume", action="store_true",
                     help="with --out-dir: continue a killed run, fitting only the blocks not "
                          "written yet")
+    mp = fb.add_argument_group("several processes (with --out-dir; JAX's multi-process "
+                               "runtime, brdf_fit.fitting.distributed)")
+    mp.add_argument("--processes", type=_positive_int, default=None, metavar="N",
+                    help="start N local processes that share the blocks (one machine)")
+    mp.add_argument("--coordinator", default=None, metavar="HOST:PORT",
+                    help="join a multi-process run whose process 0 listens at HOST:PORT "
+                         "(with --num-processes and --process-id)")
+    mp.add_argument("--num-processes", type=_positive_int, default=None, metavar="N")
+    mp.add_argument("--process-id", type=int, default=None, metavar="I")
+    mp.add_argument("--cluster", action="store_true",
+                    help="join a multi-process run described by the cluster's environment "
+                         "(SLURM, Open MPI: read by jax.distributed)")
+    mp.add_argument("--join-timeout", type=float, default=None, metavar="S",
+                    help="seconds to reach the coordinator before giving up (default 60)")
     fb.set_defaults(func=cmd_fit_batch)
 
     d = sub.add_parser("demo", help="the main job on an embedded default (no input needed)")
@@ -1821,6 +2021,7 @@ def main(argv: list[str] | None = None) -> int:
     import warnings
 
     args = build_parser().parse_args(argv)
+    args._argv = None if argv is None else list(argv)
     _enable_compilation_cache(not args.no_cache)
     shown = warnings.showwarning
     warnings.showwarning = _show_warning

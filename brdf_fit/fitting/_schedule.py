@@ -112,11 +112,12 @@ def bucket(n: int, unit: int) -> int:
 class Runner:
     """Jitted (optionally shard_mapped) chunk, init, guess and finalise functions of one static
     problem, cached per shape by JAX. With ``shard`` the batch axis is laid out over a 1-D mesh
-    of ``jax.devices()`` and every call runs under ``shard_map`` (the data replicated, every
-    per-lane argument split along the batch)."""
+    of ``jax.local_devices()`` (this process's: a multi-process run shards within each) and
+    every call runs under ``shard_map`` (the data replicated, every per-lane argument split
+    along the batch)."""
 
     def __init__(self, problem, solver, rtol, atol, shard, group, sigma):
-        self.devices = jax.devices() if shard else jax.devices()[:1]
+        self.devices = jax.local_devices() if shard else jax.local_devices()[:1]
         self.ndev = len(self.devices)
         self.mesh = Mesh(np.asarray(self.devices), ("batch",)) if self.ndev > 1 else None
         self.group = group
@@ -295,7 +296,7 @@ def runner(problem, solver, rtol, atol, shard, group, sigma) -> Runner:
         rtol = atol = None
     key = (problem.key, solver, rtol if rtol is None else float(rtol),
            atol if atol is None else float(atol), shard,
-           len(jax.devices()), group, sigma)
+           len(jax.local_devices()), group, sigma)
     r = _RUNNERS.get(key)
     if r is None:
         if len(_RUNNERS) >= MAX_RUNNERS:

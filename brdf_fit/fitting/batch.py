@@ -99,8 +99,8 @@ same). Measured on this 2-core CPU, one optimistix LM step cost ~4x a batch-lm
 step (it linearises and evaluates the residual separately and solves by QR).
 
 **Sharding.** With ``shard=True`` the batch axis is laid out over a 1-D
-:class:`jax.sharding.Mesh` of ``jax.devices()`` with ``NamedSharding(mesh, P("batch"))`` and
-every call runs under ``jax.shard_map``: each device iterates its own groups, so a device stops
+:class:`jax.sharding.Mesh` of ``jax.local_devices()`` with ``NamedSharding(mesh, P("batch"))``
+and every call runs under ``jax.shard_map``: each device iterates its own groups, so a device stops
 when *its* members are done. Blocks are multiples of ``group x`` the device count. On a CPU,
 ``XLA_FLAGS=--xla_force_host_platform_device_count=N`` (set before JAX starts) gives N host
 devices, one per core: the groups of one device run one after another on one core, so this is
@@ -329,7 +329,7 @@ def fit_batch(
     :data:`~brdf_fit.fitting.guess.SHARED_METRICS`, the guess is the finer shared one
     (:data:`~brdf_fit.fitting.guess.SHARED_CANDIDATES` candidates on up to
     :data:`~brdf_fit.fitting.guess.SHARED_SAMPLES` samples). ``shard``: lay the batch over all
-    ``jax.devices()`` (default: when there are several). ``progress``: called as
+    ``jax.local_devices()`` (default: when there are several). ``progress``: called as
     ``progress(finished, B, stage)`` at the start and after every chunk (the CLI's progress
     bar). ``dtype``: of the arrays and the solve (default: JAX's default float).
     """
@@ -395,7 +395,7 @@ def fit_batch(
     fixed = {k: v.astype(dtype) for k, v in fixed.items()}
 
     if shard is None:
-        shard = len(jax.devices()) > 1
+        shard = len(jax.local_devices()) > 1
     p = u0.shape[1]
     state = LMState.start(u0, dtype, max_steps, rtol, atol)
     vary = tuple(n for n in free if n not in init) if guess == "grid" else ()

@@ -35,6 +35,16 @@ previous run is refused without ``resume``. Without ``out`` the results are kept
 Bad output folders (an existing file, a missing or read-only parent) are refused before any
 fitting.
 
+**Several processes.** ``shard=(index, count)`` makes this process one of ``count`` sharing
+the folder: it fits the blocks ``k`` with ``k % count == index`` (of those not written yet),
+so the processes exchange no data. The lead (index 0) settles the manifest (a new run, a
+resumed one, or a refusal, as above) and removes stale temporary files; with ``sync`` (a
+barrier of all processes, :func:`brdf_fit.fitting.distributed.barrier`) the others wait for
+it, then check that the manifest is their run's, and every process waits at the end until all
+blocks are written. A block is the same computation whichever process fits it, so the result
+does not depend on ``count``; a run that lost a process is completed by ``resume`` with any
+number of processes.
+
 **Progress.** ``progress=True`` draws a bar on stderr (problems done, rate, ETA), updated after
 every chunk of every block; a callable is called as ``progress(done, total, stage)`` like
 ``fit_batch``'s (the CLI's bar); None or False: silent.
@@ -270,7 +280,8 @@ def _slicer(name, a, n, per_problem_ndim, m):
 def fit_stream(values, model, out=None, *, wi=None, wo=None, weight=None, sigma=None,
                n_problems: int | None = None, block_size: int | None = None,
                memory_mb: float = MEMORY_MB, resume: bool = False, progress=True,
-               meta: dict | None = None, prefetch: bool = True, **fit_kw) -> StreamResult:
+               meta: dict | None = None, prefetch: bool = True,
+               shard: tuple[int, int] | None = None, sync=None, **fit_kw) -> StreamResult:
     """Fit ``model`` to N problems streamed from ``values`` in equal blocks (see the module
     docstring): ``values`` an array-like (N, M, C) / (N, M) or a callable ``values(start, stop)``
     (then ``n_problems`` is required); ``wi``, ``wo``, ``weight``, ``sigma`` shared or
@@ -281,11 +292,22 @@ def fit_stream(values, model, out=None, *, wi=None, wo=None, weight=None, sigma=
     source recorded in the manifest and required equal on resume (the CLI: its file list);
     ``prefetch``: read the next block on a worker thread while this one is fitted (a callable
     source is then called from that thread, one call at a time, in block order; False: every
-    block is read on the calling thread between fits).
+    block is read on the calling thread between fits). ``shard``: ``(index, count)``, this
+    process's share of a run of ``count`` processes (the module docstring, *Several
+    processes*): it fits the blocks ``k`` with ``k % count == index``; ``sync(name)``: a
+    barrier of all ``count`` processes (:func:`brdf_fit.fitting.distributed.barrier`), called
+    once the manifest is settled and once every block is written.
     Other keywords go to :func:`~brdf_fit.fitting.batch.fit_batch` (``fix`` / ``init``: values
     shared by all problems; a per-problem array would not match a block)."""
     t0 = time.perf_counter()
     path = None if out is None else _check_out(out)  # before anything is read or fitted
+    index, count = (0, 1) if shard is None else (int(shard[0]), int(shard[1]))
+    if not (count >= 1 and 0 <= index < count):
+        raise FitError(f"fit_stream: shard must be (index, count) with 0 <= index < count, "
+                       f"got {shard}")
+    if count > 1 and path is None:
+        raise FitError("fit_stream: several processes need an output folder (out)")
+    lead = index == 0
     if "progress" in fit_kw:
         raise FitError("fit_stream: pass progress= (the stream's), not fit_batch's")
     callable_source = callable(values)
@@ -339,7 +361,23 @@ def fit_stream(values, model, out=None, *, wi=None, wo=None, weight=None, sigma=
                    if v is not None and np.ndim(v) <= 2},
     }
     done_blocks: set[int] = set()
-    if path is not None:
+    if path is not None and not lead:
+        # the lead (index 0) decides: a new run, a resumed one, or a refusal; the others wait
+        # for it at the barrier, then take the manifest it settled (it must be this run's)
+        if sync is not None:
+            sync("brdf_fit.fit_stream.manifest")
+        mpath = path / MANIFEST
+        try:
+            old = json.loads(mpath.read_text())
+        except (OSError, ValueError) as e:
+            raise FitError(f"{out}: process {index} of {count}: no readable {MANIFEST} "
+                           f"({e}); the lead process (index 0) writes it") from None
+        diff = sorted(k for k in set(old) | set(manifest) if old.get(k) != manifest.get(k))
+        if diff:
+            raise FitError(f"{out}: process {index} of {count}: the run in the folder differs "
+                           f"in {', '.join(diff)}")
+        done_blocks = {k for k in range(n_blocks) if (path / block_name(k)).exists()}
+    elif path is not None:
         mpath = path / MANIFEST
         if mpath.exists():
             if not resume:
@@ -358,10 +396,13 @@ def fit_stream(values, model, out=None, *, wi=None, wo=None, weight=None, sigma=
         elif path.exists() and any(p.name.startswith("block_") for p in path.iterdir()):
             raise FitError(f"{out}: holds block files but no {MANIFEST}; choose a new folder")
         path.mkdir(exist_ok=True)
-        for stale in path.glob(".block_*.tmp-*"):
-            stale.unlink()
+        if count == 1 or sync is not None:  # no other process is writing yet
+            for stale in path.glob(".block_*.tmp-*"):
+                stale.unlink()
         if not mpath.exists():
             _write_atomic(mpath, lambda fh: fh.write(json.dumps(manifest, indent=1).encode()))
+        if sync is not None and count > 1:
+            sync("brdf_fit.fit_stream.manifest")
 
     def load(k):
         """Block ``k``'s arrays, as fit_batch takes them (padded to ``bs`` problems)."""
@@ -402,10 +443,11 @@ def fit_stream(values, model, out=None, *, wi=None, wo=None, weight=None, sigma=
                        solver=fit_kw.get("solver", "batch-lm"), n_params=0, out=path,
                        source=src)
     finished = sum(min(bs, N - k * bs) for k in done_blocks)
+    mine = [k for k in range(n_blocks) if k % count == index]
     try:
         if bar is not None:
             bar(finished, N, "start")
-        todo = [k for k in range(n_blocks) if k not in done_blocks]
+        todo = [k for k in mine if k not in done_blocks]
         # the next block is read (the source called, its arrays converted and padded) on a
         # worker thread while this one is fitted: one call at a time, in block order
         if prefetch and len(todo) > 1:
@@ -445,7 +487,10 @@ def fit_stream(values, model, out=None, *, wi=None, wo=None, weight=None, sigma=
             pool.shutdown(wait=False, cancel_futures=True)
         if bar is not None and hasattr(bar, "close"):
             bar.close()
-    if res.n_params == 0 and res.fitted == [] and path is not None and n_blocks:
+    if sync is not None and count > 1:
+        sync("brdf_fit.fit_stream.done")  # every process's blocks are written
+    if res.n_params == 0 and res.fitted == [] and path is not None and n_blocks and (
+            (path / block_name(0)).exists()):
         b0 = res.block(0)
         res.n_params = int(sum(np.prod(v.shape[1:], dtype=int) for k, v in b0.items()
                                if k.startswith("stderr/")))
