@@ -19,9 +19,8 @@ demo: $(STAMP)          ## the main job on its embedded default
 	$(BIN)/brdf-fit demo
 
 # the suite runs in parallel, one process per core (pytest-xdist; whole files per worker, so a
-# file's tests share their compilations): 18:04-22:21 for 2124 tests on 2 idle AMD EPYC cores
-# from a fresh clone (2026-12-04; the previous release's 1951 tests: 16:16 there, 9:15 on an
-# Intel Xeon with 2 cores)
+# file's tests share their compilations): 16:30 for 2143 tests on 2 idle AMD EPYC cores from a
+# fresh clone (2026-12-05; over the 12-minute budget on that machine)
 XDIST  := -n auto --maxprocesses=4 --dist loadfile
 
 test: $(STAMP)          ## the default test suite (what CI runs)

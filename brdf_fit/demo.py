@@ -8,8 +8,8 @@ Cold (empty caches) it is compilation-bound; the fits run two at a time in threa
 selection judges the fits as they are rather than refitting each (which doubled the
 compilations), evaluation is compiled whole (:func:`brdf_fit.models._base.evaluate`), and the
 plots are drawn while the checks run. Measured on an idle 2-core AMD EPYC (2026-12-04): 64 s
-cold before these changes, ~23 s now (the figures the README states come from
-``benchmarks/bench_latency.py``).
+cold before these changes, 15.6-23.7 s now (ten runs, median 19.3 s), 9.7 s warm
+(``benchmarks/bench_latency.py`` and ``time brdf-fit demo`` with an empty cache folder).
 
 This is the application layer: it uses the synthetic instrument (:mod:`data_synth`) and the
 library; nothing in the library imports it.
