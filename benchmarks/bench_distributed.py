@@ -37,17 +37,9 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
+from bench_latency import _cpu as cpu_name  # noqa: E402  (the CPU's model name)
+
 TEXELS_4K = 4096 * 4096  # 1.68e7
-
-
-def cpu_name() -> str:
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def run(cmd, env) -> tuple[float, float, str]:

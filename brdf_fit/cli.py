@@ -753,12 +753,8 @@ def _fit_batch_streamed(args, entry, fix, init) -> int:
                          enabled=not args.quiet)
     try:
         res = fit_stream(source, entry.name, out, n_problems=len(paths),
-                         block_size=args.block_size, resume=args.resume or shard is not None,
-                         progress=bar, shard=shard, sync=sync,
-                         meta={"files": digest, "n_files": len(paths)},
-                         fix=fix, init=init, metric=args.metric, cos_weight=args.cos_weight,
-                         max_zenith_deg=args.max_zenith_deg, max_steps=args.max_steps,
-                         guess=args.guess)
+                         meta={"files": digest, "n_files": len(paths)}, progress=bar,
+                         **_stream_kw(args, fix, init, shard, sync))
     finally:
         bar.close()
     if shard is not None and shard[0] != 0:
@@ -798,6 +794,15 @@ def _fit_batch_setup(args):
     return entry, fix, init
 
 
+def _stream_kw(args, fix, init, shard, sync) -> dict:
+    """fit_stream's keywords from fit-batch's options, the same for files and value arrays (a
+    process of a multi-process run always resumes: the lead settled the folder)."""
+    return {"block_size": args.block_size, "resume": args.resume or shard is not None,
+            "shard": shard, "sync": sync, "fix": fix, "init": init, "metric": args.metric,
+            "cos_weight": args.cos_weight, "max_zenith_deg": args.max_zenith_deg,
+            "max_steps": args.max_steps, "guess": args.guess}
+
+
 def _fit_batch_values(args, entry, fix, init, fit_stream) -> int:
     """``fit-batch --values V.npy --geometry G.npz --out-dir DIR``: N problems on one shared
     geometry, streamed from a memory-mapped array; the parameter maps (``maps/params_NAME.npy``
@@ -832,12 +837,9 @@ def _fit_batch_values(args, entry, fix, init, fit_stream) -> int:
     bar = _BatchProgress(f"{entry.name}, {values.shape[0]} problems of {values.shape[1]} samples",
                          enabled=not args.quiet)
     try:
-        res = fit_stream(values, entry.name, out, wi=wi, wo=wo, block_size=args.block_size,
-                         resume=args.resume or shard is not None, progress=bar, shard=shard,
-                         sync=sync, meta={"values": str(args.values), "shape": values.shape},
-                         fix=fix, init=init, metric=args.metric, cos_weight=args.cos_weight,
-                         max_zenith_deg=args.max_zenith_deg, max_steps=args.max_steps,
-                         guess=args.guess)
+        res = fit_stream(values, entry.name, out, wi=wi, wo=wo,
+                         meta={"values": str(args.values), "shape": values.shape}, progress=bar,
+                         **_stream_kw(args, fix, init, shard, sync))
     finally:
         bar.close()
     if shard is not None and shard[0] != 0:
