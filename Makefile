@@ -19,7 +19,7 @@ demo: $(STAMP)          ## the main job on its embedded default
 	$(BIN)/brdf-fit demo
 
 # the suite runs in parallel, one process per core (pytest-xdist; whole files per worker, so a
-# file's tests share their compilations): 16:30 for 2143 tests on 2 idle AMD EPYC cores from a
+# file's tests share their compilations): 15:12-16:30 for 2143 tests on 2 idle AMD EPYC cores from a
 # fresh clone (2026-12-05; over the 12-minute budget on that machine)
 XDIST  := -n auto --maxprocesses=4 --dist loadfile
 
