@@ -765,21 +765,30 @@ def _fit_batch_streamed(args, entry, fix, init) -> int:
     _flag_rows(rows)
     if args.out is not None:
         _write_batch_table(rows, args.out)
+    return _stream_report(
+        args, entry, res, out, full, f"{len(paths)} file(s)", "files.txt",
+        {"files": len(paths),
+         "not_converged": [r["file"] for r in rows if not r["converged"]][:100]}, args.out)
+
+
+def _stream_report(args, entry, res, out, full, what, wrote, extra, table=None) -> int:
+    """The summary of a streamed fit-batch run (JSON or two lines) and its exit status: 0
+    when every problem converged, else 1. ``what``: the problems in words; ``wrote``: what the
+    folder holds besides the blocks and the manifest; ``extra``: the JSON's own fields;
+    ``table``: the per-file table written (--out), if any."""
     conv = float(np.mean(full.converged))
-    summary = {"model": entry.name, "out_dir": str(out), "files": len(paths),
-               "blocks": res.n_blocks, "block_size": res.block_size, "fitted": res.fitted,
-               "skipped": res.skipped, "converged": conv,
-               "not_converged": [r["file"] for r in rows if not r["converged"]][:100],
-               "seconds": round(res.seconds, 3)}
+    summary = {"model": entry.name, "out_dir": str(out), **extra, "blocks": res.n_blocks,
+               "block_size": res.block_size, "fitted": res.fitted, "skipped": res.skipped,
+               "converged": conv, "seconds": round(res.seconds, 3)}
     if args.json:
         print(json.dumps(summary, indent=2))
     else:
-        print(f"{entry.name} fitted to {len(paths)} file(s), metric {args.metric}, in "
+        print(f"{entry.name} fitted to {what}, metric {args.metric}, in "
               f"{res.n_blocks} block(s) of {res.block_size} ({len(res.fitted)} fitted now, "
               f"{len(res.skipped)} already written); converged {100 * conv:.2f}%")
-        print(f"wrote {out}/ (block_*.npz, manifest.json, files.txt)")
-        if args.out is not None:
-            print(f"wrote {args.out}")
+        print(f"wrote {out}/ (block_*.npz, manifest.json, {wrote})")
+        if table is not None:
+            print(f"wrote {table}")
     return 0 if conv == 1.0 else 1
 
 
@@ -853,19 +862,9 @@ def _fit_batch_values(args, entry, fix, init, fit_stream) -> int:
     arrays.update({"converged": full.converged, "residual_rms": full.residual_rms})
     for name, a in arrays.items():
         np.save(maps / f"{name}.npy", np.asarray(a))
-    conv = float(np.mean(full.converged))
-    summary = {"model": entry.name, "out_dir": str(out), "problems": int(values.shape[0]),
-               "blocks": res.n_blocks, "block_size": res.block_size, "fitted": res.fitted,
-               "skipped": res.skipped, "converged": conv,
-               "maps": sorted(f"maps/{n}.npy" for n in arrays), "seconds": round(res.seconds, 3)}
-    if args.json:
-        print(json.dumps(summary, indent=2))
-    else:
-        print(f"{entry.name} fitted to {values.shape[0]} problems, metric {args.metric}, in "
-              f"{res.n_blocks} block(s) of {res.block_size} ({len(res.fitted)} fitted now, "
-              f"{len(res.skipped)} already written); converged {100 * conv:.2f}%")
-        print(f"wrote {out}/ (block_*.npz, manifest.json, maps/*.npy)")
-    return 0 if conv == 1.0 else 1
+    return _stream_report(
+        args, entry, res, out, full, f"{values.shape[0]} problems", "maps/*.npy",
+        {"problems": int(values.shape[0]), "maps": sorted(f"maps/{n}.npy" for n in arrays)})
 
 
 def _join_run(args):
