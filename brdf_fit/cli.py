@@ -702,7 +702,6 @@ def _fit_batch_streamed(args, entry, fix, init) -> int:
     readable and share one sample count, channel count and sigma-or-not (checked per block;
     the blocks written before a bad file are kept)."""
     import hashlib
-    import pathlib
 
     from brdf_fit.fitting.stream import fit_stream
 
@@ -712,16 +711,13 @@ def _fit_batch_streamed(args, entry, fix, init) -> int:
         return _fit_batch_processes(args)
     if args.values is not None:
         return _fit_batch_values(args, entry, fix, init, fit_stream)
+    if args.images is not None:
+        return _fit_batch_images(args, entry, fix, init, fit_stream)
     if not args.data:
         raise CLIError("fit-batch needs data files (or --values FILE.npy --geometry FILE.npz "
                        "with --out-dir)")
     shard, sync = _join_run(args)
-    out = pathlib.Path(args.out_dir)
-    if out.exists() and not out.is_dir():
-        raise CLIError(f"{args.out_dir}: --out-dir names an existing file, not a folder")
-    parent = out.parent if str(out.parent) else pathlib.Path(".")
-    if not out.exists() and not parent.is_dir():
-        raise CLIError(f"{args.out_dir}: cannot write: folder {str(parent)!r} does not exist")
+    out = _check_out_dir(args)
     if args.out is not None:
         check_output_file(args.out, (".csv", ".json"), "--out")
     if (out / "manifest.json").exists() and not args.resume and shard is None:
@@ -771,12 +767,16 @@ def _fit_batch_streamed(args, entry, fix, init) -> int:
          "not_converged": [r["file"] for r in rows if not r["converged"]][:100]}, args.out)
 
 
-def _stream_report(args, entry, res, out, full, what, wrote, extra, table=None) -> int:
+def _stream_report(args, entry, res, out, full, what, wrote, extra, table=None,
+                   measured=None) -> int:
     """The summary of a streamed fit-batch run (JSON or two lines) and its exit status: 0
     when every problem converged, else 1. ``what``: the problems in words; ``wrote``: what the
     folder holds besides the blocks and the manifest; ``extra``: the JSON's own fields;
-    ``table``: the per-file table written (--out), if any."""
-    conv = float(np.mean(full.converged))
+    ``table``: the per-file table written (--out), if any; ``measured``: the problems that
+    count (a mask; default all)."""
+    conv = np.asarray(full.converged)
+    conv = float(np.mean(conv if measured is None else conv[measured])) if (
+        measured is None or np.any(measured)) else 0.0
     summary = {"model": entry.name, "out_dir": str(out), **extra, "blocks": res.n_blocks,
                "block_size": res.block_size, "fitted": res.fitted, "skipped": res.skipped,
                "converged": conv, "seconds": round(res.seconds, 3)}
@@ -867,6 +867,102 @@ def _fit_batch_values(args, entry, fix, init, fit_stream) -> int:
         {"problems": int(values.shape[0]), "maps": sorted(f"maps/{n}.npy" for n in arrays)})
 
 
+def _fit_batch_images(args, entry, fix, init, fit_stream) -> int:
+    """``fit-batch --images STACK.json --out-dir DIR``: one problem per texel of an image stack
+    (:mod:`brdf_fit.io.stack`: M images, each one light and view direction). The pixels are
+    written once into ``DIR/values.npy`` (image-major, memory-mapped; reused on ``--resume``),
+    streamed block by block (non-finite pixels masked), and the maps written when every block
+    is: ``DIR/maps/NAME.npy`` (H, W[, C]) and ``NAME.exr`` (OpenEXR, when installed) for
+    ``params_*``, ``stderr_*``, ``undetermined_*``, ``converged``, ``residual_rms``."""
+
+    from brdf_fit.data import DataError
+    from brdf_fit.io.stack import read_stack, write_maps
+
+    if args.data or args.values is not None:
+        raise CLIError("give data files, --values or --images: one of them")
+    if args.geometry is not None:
+        raise CLIError("--images takes its directions from the stack description, not "
+                       "--geometry")
+    try:
+        stack = read_stack(args.images)
+    except (DataError, ImportError) as e:
+        raise CLIError(str(e)) from None
+    out = _check_out_dir(args)
+    if (out / "manifest.json").exists() and not args.resume and not (
+            args.coordinator or args.cluster):
+        raise CLIError(f"{args.out_dir}: holds a previous run; --resume continues it (or "
+                       "choose a new folder)")
+    shard, sync = _join_run(args)
+    lead = shard is None or shard[0] == 0
+    vpath = out / "values.npy"
+    if lead:
+        out.mkdir(exist_ok=True)
+        bar = _BatchProgress(f"reading {stack.n_images} images of {stack.shape[1]}x"
+                             f"{stack.shape[0]}", enabled=not args.quiet)
+        try:
+            values = stack.to_values(vpath, progress=lambda d, t: bar(d, t, "images"))
+        except (DataError, ImportError) as e:
+            raise CLIError(str(e)) from None
+        finally:
+            bar.close()
+    if sync is not None and shard[1] > 1:
+        from brdf_fit.fitting.distributed import DONE_TIMEOUT_S
+
+        sync("brdf_fit.stack.values", timeout_s=DONE_TIMEOUT_S)  # the lead wrote them
+    if not lead:
+        values = np.moveaxis(np.load(vpath, mmap_mode="r"), 0, 1)
+
+    def source(s, e):  # non-finite pixels (not measured) are masked, not fitted
+        v = np.asarray(values[s:e], float)
+        ok = np.isfinite(v)
+        return {"values": np.where(ok, v, 0.0), "weight": ok.astype(float)}
+
+    H, W = stack.shape
+    bar = _BatchProgress(f"{entry.name}, {H}x{W} texels of {stack.n_images} images",
+                         enabled=not args.quiet)
+    try:
+        res = fit_stream(source, entry.name, out, n_problems=stack.n_texels, wi=stack.wi,
+                         wo=stack.wo, meta=stack.fingerprint(), progress=bar,
+                         **_stream_kw(args, fix, init, shard, sync))
+    finally:
+        bar.close()
+    if not lead:
+        return 0  # the lead (process 0) reports the run
+    full = res.result()
+    # a texel without one finite pixel (outside the sample, not measured) has no fit: its
+    # parameters and errors are NaN, its converged flag False, and it does not count against
+    # the exit status (n_samples says how many pixels each texel's fit used)
+    empty = np.asarray(full.n_samples) == 0
+    maps = stack.to_maps(full)
+    for name, a in maps.items():
+        if name.startswith(("params_", "stderr_")):
+            maps[name] = np.where(empty.reshape(H, W, *[1] * (a.ndim - 2)), np.nan, a)
+        elif name.startswith("undetermined_"):
+            maps[name] = a | empty.reshape(H, W, *[1] * (a.ndim - 2))
+    maps["converged"] = maps["converged"] & ~empty.reshape(H, W)
+    maps["n_samples"] = np.asarray(full.n_samples).reshape(H, W)
+    try:
+        import OpenEXR  # noqa: F401
+
+        exr = True
+    except ImportError:
+        exr = False
+    attributes = {"brdf_fit": json.dumps({"model": entry.name, "stack": str(stack.path),
+                                          "metric": args.metric})}
+    written = write_maps(out / "maps", maps, exr=exr, attributes=attributes)
+    if not exr and not args.json:
+        print("OpenEXR is not installed: maps written as .npy only (pip install OpenEXR)",
+              file=sys.stderr)
+    what = f"{H}x{W} texels" + (f" ({int(empty.sum())} without a finite pixel: not fitted, "
+                                  "NaN in the maps)" if empty.any() else "")
+    return _stream_report(
+        args, entry, res, out, full, what, "values.npy, maps/*.npy"
+        + (", maps/*.exr" if exr else ""),
+        {"problems": stack.n_texels, "shape": [H, W], "images": stack.n_images,
+         "unmeasured": int(empty.sum()),
+         "maps": sorted(str(p.relative_to(out)) for p in written)}, measured=~empty)
+
+
 def _join_run(args):
     """``(shard, sync)`` for fit_stream: this process's place in a multi-process run (joined
     here, before any JAX computation), or ``(None, None)`` for a single process."""
@@ -886,21 +982,42 @@ def _join_run(args):
     return (index, count), distributed.barrier
 
 
+def _check_out_dir(args):
+    """``--out-dir`` as a path, refused before any work when it names a file or its parent
+    folder does not exist."""
+    import pathlib
+
+    out = pathlib.Path(args.out_dir)
+    if out.exists() and not out.is_dir():
+        raise CLIError(f"{args.out_dir}: --out-dir names an existing file, not a folder")
+    parent = out.parent if str(out.parent) else pathlib.Path(".")
+    if not out.exists() and not parent.is_dir():
+        raise CLIError(f"{args.out_dir}: cannot write: folder {str(parent)!r} does not exist")
+    return out
+
+
 def _fit_batch_processes(args) -> int:
     """``fit-batch --out-dir DIR --processes N``: N local processes on one machine, joined by
     JAX's multi-process runtime (process 0 hosts the coordinator on a free local port); this
     process launches them, shows the blocks written, and reports the folder when all are done."""
-    import pathlib
     import socket
     import subprocess
     import time
 
-    out = pathlib.Path(args.out_dir)
+    out = _check_out_dir(args)
     if (out / "manifest.json").exists() and not args.resume:
         raise CLIError(f"{args.out_dir}: holds a previous run; --resume continues it (or "
                        "choose a new folder)")
     if args.coordinator or args.cluster or args.process_id is not None:
         raise CLIError("--processes starts its own processes: not with --coordinator/--cluster")
+    if args.images is not None:  # a bad description is reported once, here, not by each child
+        from brdf_fit.data import DataError
+        from brdf_fit.io.stack import read_stack
+
+        try:
+            read_stack(args.images)
+        except (DataError, ImportError) as e:
+            raise CLIError(str(e)) from None
     with socket.socket() as sock:  # a free port for process 0's coordination service
         sock.bind(("127.0.0.1", 0))
         port = sock.getsockname()[1]
@@ -963,6 +1080,8 @@ def cmd_fit_batch(args) -> int:
     entry, fix, init = _fit_batch_setup(args)
     if args.values is not None and args.out_dir is None:
         raise CLIError("--values needs --out-dir (the streamed path writes the maps there)")
+    if args.images is not None and args.out_dir is None:
+        raise CLIError("--images needs --out-dir (the streamed path writes the maps there)")
     if args.out_dir is None and not args.data:
         raise CLIError("fit-batch needs data files")
     if args.out_dir is not None:
@@ -1791,6 +1910,11 @@ def build_parser() -> argparse.ArgumentParser:
                     help="instead of files, with --out-dir: an (N, M, C) or (N, M) array of "
                          "N problems (memory-mapped), on one geometry (--geometry); writes "
                          "parameter maps DIR/maps/*.npy")
+    fb.add_argument("--images", default=None, metavar="STACK.json",
+                    help="instead of files, with --out-dir: an image stack (a JSON description "
+                         "of M images, .exr or .npy, and each one's light and view direction; "
+                         "brdf_fit.io.stack), one problem per texel; writes maps DIR/maps/"
+                         "*.npy and *.exr of the image's size")
     fb.add_argument("--geometry", default=None, metavar="FILE.npz",
                     help="with --values: arrays wi and wo, (M, 3) each, in the local frame")
     _fit_options(fb, what="mask")

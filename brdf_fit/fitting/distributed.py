@@ -47,7 +47,9 @@ def initialize(coordinator: str | None = None, num_processes: int | None = None,
                        "process's id together, or none of them (a cluster's environment)")
     if all(given) and not (0 <= int(process_id) < int(num_processes)):
         raise FitError(f"process id {process_id} is not in 0..{int(num_processes) - 1}")
-    if all(given) and int(process_id) != 0:
+    if not any(given):
+        coordinator, num_processes, process_id = _from_cluster(timeout_s)
+    if int(process_id) != 0:
         _wait_for(coordinator, timeout_s, process_id, num_processes)
     try:
         jax.distributed.initialize(
@@ -60,6 +62,25 @@ def initialize(coordinator: str | None = None, num_processes: int | None = None,
         raise FitError(f"process {process_id} of {num_processes}: could not join the run at "
                        f"{where} within {timeout_s:g} s ({first})") from None
     return jax.process_index(), jax.process_count()
+
+
+def _from_cluster(timeout_s: float) -> tuple[str, int, int]:
+    """``(coordinator, count, index)`` read from a cluster scheduler's environment (SLURM, Open
+    MPI, ...) by JAX's own cluster detection (the function ``jax.distributed.initialize`` calls
+    when they are not given), so that this process can check the coordinator is reachable
+    before JAX tries (see :func:`_wait_for`). Raises FitError when no cluster is detected."""
+    try:
+        from jax._src.clusters import ClusterEnv
+
+        coordinator, count, index, _ = ClusterEnv.auto_detect_unset_distributed_params(
+            None, None, None, None, None, int(timeout_s))
+    except Exception as e:  # a private API: any failure is reported, not hidden
+        raise FitError(f"could not read the cluster's environment ({type(e).__name__}: {e}); "
+                       "give --coordinator, --num-processes and --process-id") from None
+    if coordinator is None or count is None or index is None:
+        raise FitError("no cluster environment found (SLURM, Open MPI, ...: JAX's detection "
+                       "found none); give --coordinator, --num-processes and --process-id")
+    return str(coordinator), int(count), int(index)
 
 
 def _wait_for(coordinator: str, timeout_s: float, process_id, num_processes) -> None:

@@ -86,6 +86,7 @@ from brdf_fit.core.table import (
     parse_descriptor,
     values_sha256,
 )
+from brdf_fit.io.exr import read_exr, write_exr
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "FORMATS", "check_output", "write_table", "read_table",
            "values_sha256", "sidecar_path"]
@@ -429,37 +430,30 @@ def _exr_names(channels) -> tuple[str, ...]:
 
 def _write_exr(table: Table, values: np.ndarray, path: pathlib.Path, half: bool
                ) -> list[pathlib.Path]:
-    OpenEXR = _need("OpenEXR", "OpenEXR", "writing .exr")
+    _need("OpenEXR", "OpenEXR", "writing .exr")
     origin = _image_origin(table.meta)
-    dtype = np.float16 if half else np.float32
-    image = _to_image(values, origin).astype(dtype)
+    image = _to_image(values, origin)
     names = _exr_names(table.channels)
     desc = _descriptor(table, values, image_origin=origin, pixel_type="HALF" if half else "FLOAT",
                        exr_channels=dict(zip(table.channels, names, strict=True)))
-    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage,
-              _EXR_ATTRIBUTE: _dumps(desc)}
-    pixels = {n: np.ascontiguousarray(image[..., k]) for k, n in enumerate(names)}
     with _atomic(path) as tmp:
-        with OpenEXR.File(header, pixels) as exr:
-            exr.write(tmp)
+        write_exr(tmp, image, names, {_EXR_ATTRIBUTE: _dumps(desc)}, half=half)
     return [path]
 
 
 def _read_exr(path: pathlib.Path) -> Table:
-    OpenEXR = _need("OpenEXR", "OpenEXR", "reading .exr")
+    _need("OpenEXR", "OpenEXR", "reading .exr")
     where = str(path)
-    with OpenEXR.File(str(path), separate_channels=True) as exr:
-        header = exr.header()
-        if _EXR_ATTRIBUTE not in header:
-            raise ValueError(f"{where}: no {_EXR_ATTRIBUTE!r} header attribute")
-        d = _parse_descriptor(str(header[_EXR_ATTRIBUTE]), where)
-        chans = exr.channels()
-        planes = []
-        for c in d["channels"]:
-            n = d["exr_channels"][c]
-            if n not in chans:
-                raise ValueError(f"{where}: EXR channel {n!r} (table channel {c!r}) is missing")
-            planes.append(np.asarray(chans[n].pixels, dtype=np.float32))
+    image, names, header = read_exr(path)
+    if _EXR_ATTRIBUTE not in header:
+        raise ValueError(f"{where}: no {_EXR_ATTRIBUTE!r} header attribute")
+    d = _parse_descriptor(str(header[_EXR_ATTRIBUTE]), where)
+    planes = []
+    for c in d["channels"]:
+        n = d["exr_channels"][c]
+        if n not in names:
+            raise ValueError(f"{where}: EXR channel {n!r} (table channel {c!r}) is missing")
+        planes.append(image[..., names.index(n)])
     image = np.stack(planes, axis=-1)
     return _table_from(d, _from_image(image, d.get("image_origin", "top")), where)
 

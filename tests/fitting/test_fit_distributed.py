@@ -72,14 +72,16 @@ def _same(a, b):
 
 
 def test_two_processes_equal_one(tmp_path, capsys):
-    """The command line's --processes 2 on a memory-mapped value array (4,096 problems, one
-    geometry): the parameter maps equal a single process's fit_stream."""
+    """The command line's --processes 2 on an image stack (4,096 texels: 64 x 64 images, one
+    per direction pair; the lead writes the value array, the other waits for it): the
+    parameter maps equal a single process's fit_stream of the same values."""
     from brdf_fit.cli import main
+    from brdf_fit.io.stack import write_stack
 
     vals, wi, wo = _problems(tmp_path, 4096)
-    np.savez(tmp_path / "geometry.npz", wi=wi, wo=wo)
-    rc = main(["fit-batch", "--values", str(tmp_path / "values.npy"), "--geometry",
-               str(tmp_path / "geometry.npz"), "--model", "ggx", "--out-dir",
+    images = np.moveaxis(vals, 1, 0).reshape(-1, 64, 64, 3)  # (M, H, W, C), float64 .npy
+    stack = write_stack(tmp_path / "stack", images, wi, wo, fmt="npy")
+    rc = main(["fit-batch", "--images", str(stack), "--model", "ggx", "--out-dir",
                str(tmp_path / "out"), "--block-size", "512", "--processes", "2", "--quiet"])
     out = capsys.readouterr().out
     assert rc == 0, out
@@ -87,9 +89,28 @@ def test_two_processes_equal_one(tmp_path, capsys):
     ref = fit_stream(vals, "ggx", None, wi=wi, wo=wo, block_size=512, progress=False).result()
     maps = tmp_path / "out" / "maps"
     for k in ref.params:
+        for kind, r in (("params", ref.params[k]), ("stderr", ref.stderr[k])):
+            got = np.load(maps / f"{kind}_{k}.npy")
+            assert got.shape[:2] == (64, 64)
+            np.testing.assert_allclose(got.reshape(r.shape), r, rtol=1e-12, atol=0,
+                                       err_msg=f"{kind} {k}")
+    np.testing.assert_array_equal(np.load(maps / "converged.npy").ravel(), ref.converged)
+
+
+def test_value_array_maps(tmp_path, capsys):
+    """``--values V.npy --geometry G.npz`` (one process): maps (N, ...) equal fit_stream's."""
+    from brdf_fit.cli import main
+
+    vals, wi, wo = _problems(tmp_path, 64, m=12, seed=2)
+    np.savez(tmp_path / "geometry.npz", wi=wi, wo=wo)
+    rc = main(["fit-batch", "--values", str(tmp_path / "values.npy"), "--geometry",
+               str(tmp_path / "geometry.npz"), "--model", "ggx", "--out-dir",
+               str(tmp_path / "out"), "--block-size", "32", "--quiet"])
+    assert rc == 0, capsys.readouterr().out
+    ref = fit_stream(vals, "ggx", None, wi=wi, wo=wo, block_size=32, progress=False).result()
+    maps = tmp_path / "out" / "maps"
+    for k in ref.params:
         np.testing.assert_allclose(np.load(maps / f"params_{k}.npy"), ref.params[k], rtol=1e-12,
-                                   atol=0, err_msg=k)
-        np.testing.assert_allclose(np.load(maps / f"stderr_{k}.npy"), ref.stderr[k], rtol=1e-12,
                                    atol=0, err_msg=k)
     np.testing.assert_array_equal(np.load(maps / "converged.npy"), ref.converged)
 
@@ -169,3 +190,32 @@ def test_bad_value_array_requests(tmp_path, capsys, monkeypatch, argv, fragment)
     names = {"V": "V.npy", "G": "G.npz", "B": "B.npz"}
     rc = main(["fit-batch", "--model", "lambert", *[names.get(a, a) for a in argv]])
     assert rc == 2 and fragment in capsys.readouterr().err
+
+
+def test_cluster_environment(tmp_path, capsys, monkeypatch):
+    """``--cluster`` reads the run from the scheduler's environment (JAX's detection): none
+    found is an error saying what to give instead; a SLURM task whose coordinator (the first
+    node, at the port JAX derives) never answers stops within --join-timeout, naming it."""
+    from brdf_fit.cli import main
+
+    for k in [k for k in os.environ if k.startswith(("SLURM_", "OMPI_", "PMI_"))]:
+        monkeypatch.delenv(k)
+    np.save(tmp_path / "v.npy", np.ones((4, 3, 1)))
+    np.savez(tmp_path / "g.npz", wi=np.tile([0.0, 0.0, 1.0], (3, 1)),
+             wo=np.tile([0.0, 0.0, 1.0], (3, 1)))
+    argv = ["fit-batch", "--values", str(tmp_path / "v.npy"), "--geometry",
+            str(tmp_path / "g.npz"), "--model", "lambert", "--out-dir", str(tmp_path / "o"),
+            "--cluster", "--join-timeout", "3"]
+    assert main(argv) == 2
+    assert "no cluster environment found" in capsys.readouterr().err
+    port = _free_port()
+    for k, v in {"SLURM_JOB_ID": "77", "SLURM_STEP_NODELIST": "localhost", "SLURM_NTASKS": "2",
+                 "SLURM_PROCID": "1", "SLURM_LOCALID": "1",
+                 "JAX_COORDINATOR_PORT": str(port)}.items():
+        monkeypatch.setenv(k, v)
+    t0 = time.time()
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert f"process 1 of 2: could not join the run at the coordinator at localhost:{port} " \
+           "within 3 s" in err, err
+    assert time.time() - t0 < 30
