@@ -7,9 +7,10 @@ prints it.
 Cold (empty caches) it is compilation-bound; the fits run two at a time in threads, the
 selection judges the fits as they are rather than refitting each (which doubled the
 compilations), evaluation is compiled whole (:func:`brdf_fit.models._base.evaluate`), and the
-plots are drawn while the checks run. Measured on an idle 2-core AMD EPYC (2026-12-04): 64 s
-cold before these changes, 15.6-23.7 s now (ten runs, median 19.3 s), 9.7 s warm
-(``benchmarks/bench_latency.py`` and ``time brdf-fit demo`` with an empty cache folder).
+plots are drawn while the checks run. Measured on an idle 2-core AMD EPYC: 64 s cold before
+these changes; 14.9-17.5 s cold in ten runs (median 15.7 s, 2026-12-05; 15.6-23.7 s the day
+before with other work on the machine), 6.4 s warm (``time brdf-fit demo`` with an empty cache
+folder, and ``benchmarks/bench_latency.py``: results/latency_amd_epyc.md).
 
 This is the application layer: it uses the synthetic instrument (:mod:`data_synth`) and the
 library; nothing in the library imports it.

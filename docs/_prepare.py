@@ -1,7 +1,7 @@
 """Generated pages of the documentation site, written by `make docs` before `mkdocs build`:
 
-- ``docs/index.md``: the README with its links made relative to ``docs/`` and its Python blocks
-  executed (generated, not committed: the landing page and the site's home never drift apart);
+- ``docs/index.md``: the README with its links made relative to ``docs/`` and its Python and
+  shell blocks executed (generated, not committed: the landing page and the site's home never drift apart);
 - ``docs/report/``: the benchmark report (``benchmarks/results/REPORT.md`` and its figures), as
   committed by ``python benchmarks/report.py`` (not re-measured by the docs build).
 """
@@ -17,6 +17,8 @@ def index_text(readme: str) -> str:
     text = readme.replace("](docs/", "](")
     # the README's Python runs when the site is built (markdown-exec), its output shown
     text = text.replace("```python\n", '```python exec="on" source="above" result="text"\n')
+    # and so does its set-up command (make demo: the main job, its output shown)
+    text = text.replace("```bash\n", '```bash exec="on" source="above" result="text"\n')
     # links to files outside docs/ point at the repository
     return re.sub(r"\]\((?!https?:|#)([^)]*\.(?:py|json|toml|csv))\)", r"](../\1)", text)
 

@@ -35,6 +35,25 @@ def test_every_python_block_runs_in_the_build():
     assert blocks and all('exec="on"' in b for b in blocks)
 
 
+def test_every_code_block_runs_in_the_build_or_is_output():
+    """Every fenced block of the site (the README's, in the generated home page, included) is
+    executed by the build (exec="on") or declared ```text (printed output, a diagram): no
+    command or code is shown that the build did not run."""
+    fence = re.compile(r"^```(\S*)(.*)$", re.M)
+    pages = {p.relative_to(ROOT): p.read_text(encoding="utf-8") for p in DOCS.rglob("*.md")
+             if not (p.name == "index.md" and p.parent == DOCS)
+             and not str(p.relative_to(DOCS)).startswith("report/")}
+    pages["index.md"] = _prepare().index_text((ROOT / "README.md").read_text(encoding="utf-8"))
+    bad = []
+    for name, text in pages.items():
+        opening = True
+        for m in fence.finditer(text):
+            if opening and m.group(1) != "text" and 'exec="on"' not in m.group(2):
+                bad.append(f"{name}: ```{m.group(1)}{m.group(2)}")
+            opening = not opening
+    assert not bad, bad
+
+
 def test_every_page_is_in_the_navigation_and_readme_links_resolve():
     nav = (ROOT / "mkdocs.yml").read_text(encoding="utf-8")
     listed = set(re.findall(r":\s*([\w/.-]+\.md)\s*$", nav, re.M))
