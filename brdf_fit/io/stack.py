@@ -72,6 +72,12 @@ def _err(where, msg) -> DataError:
     return DataError(f"{where}: {msg}")
 
 
+def _npy_names(n: int) -> tuple[str, ...]:
+    """The channel names of a ``.npy`` image of ``n`` channels: ``Y``; ``R, G``; ``R, G, B``;
+    else ``0, 1, ...``."""
+    return ("Y",) if n == 1 else ("R", "G", "B")[:n] if n <= 3 else tuple(map(str, range(n)))
+
+
 def _image_header(path: pathlib.Path) -> tuple[tuple[int, int], tuple[str, ...]]:
     """``((H, W), channel names)`` of one image, reading only its header."""
     if path.suffix.lower() == ".npy":
@@ -82,9 +88,7 @@ def _image_header(path: pathlib.Path) -> tuple[tuple[int, int], tuple[str, ...]]
         if a.ndim not in (2, 3) or not np.issubdtype(a.dtype, np.number):
             raise _err(path, f"a .npy image is (H, W) or (H, W, C) numbers, got {a.shape} "
                        f"{a.dtype}")
-        C = 1 if a.ndim == 2 else a.shape[2]
-        names = ("Y",) if C == 1 else ("R", "G", "B")[:C] if C <= 3 else tuple(map(str, range(C)))
-        return a.shape[:2], names
+        return a.shape[:2], _npy_names(1 if a.ndim == 2 else a.shape[2])
     from brdf_fit.io.exr import _openexr
 
     OpenEXR = _openexr(f"reading {path}")
@@ -104,8 +108,7 @@ def _read_image(path: pathlib.Path, channels) -> tuple[np.ndarray, tuple[str, ..
     if path.suffix.lower() == ".npy":
         a = np.load(path)
         a = a[..., None] if a.ndim == 2 else a
-        C = a.shape[2]
-        names = ("Y",) if C == 1 else ("R", "G", "B")[:C] if C <= 3 else tuple(map(str, range(C)))
+        names = _npy_names(a.shape[2])
     else:
         from brdf_fit.io.exr import read_exr
 
@@ -382,8 +385,7 @@ def write_maps(folder, maps: dict[str, np.ndarray], *, exr: bool = False,
         if exr:
             from brdf_fit.io.exr import write_exr
 
-            img = a.astype(np.float32) if a.dtype != bool else a.astype(np.float32)
-            img = img.reshape(*a.shape[:2], -1)
+            img = a.astype(np.float32).reshape(*a.shape[:2], -1)  # booleans as 0 / 1
             tmp = folder / f".{name}.exr.tmp-{os.getpid()}.exr"
             try:
                 write_exr(tmp, img, [str(k) for k in range(img.shape[2])], attributes)
