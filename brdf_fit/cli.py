@@ -720,9 +720,7 @@ def _fit_batch_streamed(args, entry, fix, init) -> int:
     out = _check_out_dir(args)
     if args.out is not None:
         check_output_file(args.out, (".csv", ".json"), "--out")
-    if (out / "manifest.json").exists() and not args.resume and shard is None:
-        raise CLIError(f"{args.out_dir}: holds a previous run; --resume continues it (or "
-                       "choose a new folder)")
+    _check_new_run(args, out)
     paths = list(args.data)
     first = read_data(paths[0])
     first.validate()
@@ -817,7 +815,6 @@ def _fit_batch_values(args, entry, fix, init, fit_stream) -> int:
     geometry, streamed from a memory-mapped array; the parameter maps (``maps/params_NAME.npy``
     (N, ...), ``maps/stderr_NAME.npy``, ``maps/converged.npy``, ``maps/undetermined_NAME.npy``)
     are written when every block is."""
-    import pathlib
 
     if args.data:
         raise CLIError("give data files or --values, not both")
@@ -837,11 +834,8 @@ def _fit_batch_values(args, entry, fix, init, fit_stream) -> int:
                        f"{wo.shape}: expected (N, M[, C]) values and (M, 3) directions")
     if np.any(wi[:, 2] < 0) or np.any(wo[:, 2] < 0):
         raise CLIError(f"{args.geometry}: a direction below the horizon (z < 0)")
-    out = pathlib.Path(args.out_dir)
-    if (out / "manifest.json").exists() and not args.resume and not (
-            args.coordinator or args.cluster):
-        raise CLIError(f"{args.out_dir}: holds a previous run; --resume continues it (or "
-                       "choose a new folder)")
+    out = _check_out_dir(args)
+    _check_new_run(args, out)
     shard, sync = _join_run(args)
     bar = _BatchProgress(f"{entry.name}, {values.shape[0]} problems of {values.shape[1]} samples",
                          enabled=not args.quiet)
@@ -853,15 +847,11 @@ def _fit_batch_values(args, entry, fix, init, fit_stream) -> int:
         bar.close()
     if shard is not None and shard[0] != 0:
         return 0  # the lead (process 0) reports the run
+    from brdf_fit.io.stack import result_maps, write_maps
+
     full = res.result()
-    maps = out / "maps"
-    maps.mkdir(exist_ok=True)
-    arrays = {f"params_{k}": v for k, v in full.params.items()}
-    arrays.update({f"stderr_{k}": v for k, v in full.stderr.items()})
-    arrays.update({f"undetermined_{k}": v for k, v in full.undetermined.items()})
-    arrays.update({"converged": full.converged, "residual_rms": full.residual_rms})
-    for name, a in arrays.items():
-        np.save(maps / f"{name}.npy", np.asarray(a))
+    arrays = result_maps(full)
+    write_maps(out / "maps", arrays)
     return _stream_report(
         args, entry, res, out, full, f"{values.shape[0]} problems", "maps/*.npy",
         {"problems": int(values.shape[0]), "maps": sorted(f"maps/{n}.npy" for n in arrays)})
@@ -888,10 +878,7 @@ def _fit_batch_images(args, entry, fix, init, fit_stream) -> int:
     except (DataError, ImportError) as e:
         raise CLIError(str(e)) from None
     out = _check_out_dir(args)
-    if (out / "manifest.json").exists() and not args.resume and not (
-            args.coordinator or args.cluster):
-        raise CLIError(f"{args.out_dir}: holds a previous run; --resume continues it (or "
-                       "choose a new folder)")
+    _check_new_run(args, out)
     shard, sync = _join_run(args)
     lead = shard is None or shard[0] == 0
     vpath = out / "values.npy"
@@ -996,6 +983,15 @@ def _check_out_dir(args):
     return out
 
 
+def _check_new_run(args, out) -> None:
+    """A folder holding a previous run (its manifest) is refused without ``--resume``; a process
+    joining a multi-process run is exempt (its lead, process 0, settles the folder)."""
+    if (out / "manifest.json").exists() and not args.resume and not (
+            args.coordinator or args.cluster):
+        raise CLIError(f"{args.out_dir}: holds a previous run; --resume continues it (or "
+                       "choose a new folder)")
+
+
 def _fit_batch_processes(args) -> int:
     """``fit-batch --out-dir DIR --processes N``: N local processes on one machine, joined by
     JAX's multi-process runtime (process 0 hosts the coordinator on a free local port); this
@@ -1005,9 +1001,7 @@ def _fit_batch_processes(args) -> int:
     import time
 
     out = _check_out_dir(args)
-    if (out / "manifest.json").exists() and not args.resume:
-        raise CLIError(f"{args.out_dir}: holds a previous run; --resume continues it (or "
-                       "choose a new folder)")
+    _check_new_run(args, out)
     if args.coordinator or args.cluster or args.process_id is not None:
         raise CLIError("--processes starts its own processes: not with --coordinator/--cluster")
     if args.images is not None:  # a bad description is reported once, here, not by each child

@@ -54,7 +54,7 @@ import numpy as np
 from brdf_fit.data import DataError
 from brdf_fit.io.csv import QUANTITIES
 
-__all__ = ["ImageStack", "read_stack", "write_stack", "write_maps", "STACK_FORMAT",
+__all__ = ["ImageStack", "read_stack", "write_stack", "write_maps", "result_maps", "STACK_FORMAT",
            "IMAGE_EXTENSIONS"]
 
 STACK_FORMAT = "brdf_fit.image_stack/1"
@@ -237,17 +237,24 @@ class ImageStack:
         stack's H x W problems, as images (H, W[, ...]): ``params_NAME``, ``stderr_NAME``,
         ``undetermined_NAME``, ``converged``, ``residual_rms``."""
         H, W = self.shape
-        arrays = {f"params_{k}": v for k, v in result.params.items()}
-        arrays.update({f"stderr_{k}": v for k, v in result.stderr.items()})
-        arrays.update({f"undetermined_{k}": v for k, v in result.undetermined.items()})
-        arrays.update({"converged": result.converged, "residual_rms": result.residual_rms})
         out = {}
-        for name, a in arrays.items():
-            a = np.asarray(a)
+        for name, a in result_maps(result).items():
             if a.shape[0] != H * W:
                 raise ValueError(f"{name}: {a.shape[0]} problems, the stack has {H * W} texels")
             out[name] = a.reshape(H, W, *a.shape[1:])
         return out
+
+
+def result_maps(result) -> dict[str, np.ndarray]:
+    """The per-problem arrays of a :class:`~brdf_fit.fitting.batch.BatchFitResult` (N, ...) by
+    map name: ``params_NAME``, ``stderr_NAME``, ``undetermined_NAME``, ``converged``,
+    ``residual_rms`` (what :func:`write_maps` writes; :meth:`ImageStack.to_maps` shapes them
+    as images)."""
+    arrays = {f"params_{k}": v for k, v in result.params.items()}
+    arrays.update({f"stderr_{k}": v for k, v in result.stderr.items()})
+    arrays.update({f"undetermined_{k}": v for k, v in result.undetermined.items()})
+    arrays.update({"converged": result.converged, "residual_rms": result.residual_rms})
+    return {name: np.asarray(a) for name, a in arrays.items()}
 
 
 def read_stack(path) -> ImageStack:
