@@ -19,7 +19,7 @@ demo: $(STAMP)          ## the main job on its embedded default
 	$(BIN)/brdf-fit demo
 
 # the suite runs in parallel, one process per core (pytest-xdist; whole files per worker, so a
-# file's tests share their compilations): 16:21-16:51 for 2172 tests on 2 idle AMD EPYC cores from a
+# file's tests share their compilations): 15:53-16:51 for 2172 tests on 2 idle AMD EPYC cores from a
 # fresh clone (2026-12-05; over the 12-minute budget on that machine; ~94% of it is XLA compiling)
 XDIST  := -n auto --maxprocesses=4 --dist loadfile
 
