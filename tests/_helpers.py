@@ -146,6 +146,18 @@ def central_differences(f, params, h=1e-6, relative_step=False, names=None):
     return out
 
 
+#: step of the central differences through Fdr_int. Fdr_int is Mitsuba's 16,384-node
+#: Gauss-Legendre sum of an integrand with a kink (total internal reflection: the Fresnel
+#: factor reaches 1 with an infinite slope at the critical angle), so as alpha or eta moves,
+#: nodes cross the kink: the sum is continuous but its slope changes at points ~1e-6 apart in
+#: alpha (measured: central differences at h = 1e-5, 1e-6 are off by 0.1-1.5%, at h = 1e-7 by
+#: 1e-5, at h = 1e-8 and 1e-9 by < 2e-7; rounding adds only ~1e-8 at h = 1e-8). The control
+#: (tests/models/test_mitsuba_native.py): the same rows without total internal reflection
+#: (eta > 1) agree at h = 1e-5. Used by every finite-difference test of a model that holds
+#: these tables (brdf_fit.models.mitsuba.MitsubaPlasticDiffuse).
+H_KINKED = 1e-8
+
+
 def assert_gradient_matches_fd(f, grad, params, rel, abs, h=1e-6, relative_step=False,
                                names=None):
     """Every entry of the gradient ``grad`` (same structure as ``params``) equals the central

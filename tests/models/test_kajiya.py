@@ -178,8 +178,14 @@ def test_isotropic_table_regenerates_identically():
     ref = importlib.resources.files("brdf_fit") / "resources" / "tables"
     with importlib.resources.as_file(ref / table_file("isotropic")) as p:
         shipped = load_table(p)
-    np.testing.assert_allclose(np.asarray(t.values), np.asarray(shipped.values), rtol=0,
-                               atol=1e-9)
+    # compared as D_K (the table stores log D_K) to rounding of the largest entry: the diffuse
+    # part is the spectrum less its coherent constant, then an FFT (tables.kajiya.diffuse_dk),
+    # so entries 1e-10 of the peak carry the peak's rounding, which XLA's FFT and the CPU
+    # decide. Measured (jax 0.10.2, AMD EPYC, 2026-12-05): 29 of 4,656 log entries differ by
+    # up to 4.1e-7 from the shipped table, all where D_K is 4e-10 .. 1e-7 (peak 3.7), i.e. by
+    # 3.8e-15 in D_K = 1.0e-15 of the peak.
+    new, old = np.exp(np.asarray(t.values)), np.exp(np.asarray(shipped.values))
+    np.testing.assert_allclose(new, old, rtol=1e-9, atol=1e-13 * float(old.max()))
 
 
 # ----------------------------------------------------------------------------- the model

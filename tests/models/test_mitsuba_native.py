@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from _helpers import eval_jit, random_dirs
+from _helpers import H_KINKED, eval_jit, random_dirs
 
 from brdf_fit import registry
 from brdf_fit.models import mitsuba as mm
@@ -119,14 +119,7 @@ def test_another_sampler_map_is_not_mitsubas_table():
     assert diff > 10 * PARITY_RTOL, diff
 
 
-#: step of the central differences through Fdr_int. Fdr_int is Mitsuba's 16,384-node
-#: Gauss-Legendre sum of an integrand with a kink (total internal reflection: the Fresnel
-#: factor reaches 1 with an infinite slope at the critical angle), so as alpha or eta moves,
-#: nodes cross the kink: the sum is continuous but its slope changes at points ~1e-6 apart in
-#: alpha (measured: central differences at h = 1e-5, 1e-6 are off by 0.1-1.5%, at h = 1e-7 by
-#: 1e-5, at h = 1e-8 and 1e-9 by < 2e-7; rounding adds only ~1e-8 at h = 1e-8). The control
-#: below: the same rows without total internal reflection (eta > 1) agree at h = 1e-5.
-H_KINKED = 1e-8
+# H_KINKED (tests/_helpers.py): the central-difference step through Fdr_int, and why
 
 
 def test_tables_gradient_matches_finite_differences():

@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from _helpers import (
+    H_KINKED,
     assert_model_gradient_matches_fd,
     dir_from_cos,
     eval_jit,
@@ -22,6 +23,7 @@ from _lobe_quadrature import gauss_hemisphere, halfvector_rule
 
 from brdf_fit import ParameterError, astype, registry
 from brdf_fit.models import Lambert
+from brdf_fit.models.mitsuba import MitsubaPlasticDiffuse
 
 ENTRIES = registry.entries()
 NON_DELTA = [e for e in ENTRIES if "delta" not in e.tags]
@@ -204,7 +206,11 @@ def test_batch_shapes_broadcast_and_jit_equals_eager(entry, models):
     one = m.eval(wi.reshape(-1, 3), wo[0, 0])
     np.testing.assert_allclose(one[0], flat[0])
     jf = jax.jit(lambda mm, a, b: mm.eval(a, b))(m, wi, wo)
-    np.testing.assert_allclose(jf, f, rtol=1e-13)
+    # relative to the largest value: an exponential's relative rounding is the absolute
+    # rounding of its argument, so tiny values differ more (measured: Beckmann's D at alpha
+    # 0.1 on these directions reaches 1e-241, exp(-555), where jit and eager differ by 3e-13
+    # relative: 3 ulp of 555)
+    np.testing.assert_allclose(jf, f, rtol=1e-13, atol=1e-13 * float(np.max(np.abs(f))))
     assert m.pdf(wi, wo).shape == (4, 5)
     s = m.sample(wo, jnp.asarray(rng.random((4, 5))), jnp.asarray(rng.random((4, 5, 2))))
     assert s.wi.shape == (4, 5, 3) and s.pdf.shape == (4, 5)
@@ -244,5 +250,17 @@ def test_gradients_match_finite_differences(entry):
     d = entry.defaults()
     # move unit-interval parameters away from their bounds so central differences stay inside
     p0 = {k: np.clip(v, 0.05, 0.95) if entry.param(k).hi == 1.0 else v for k, v in d.items()}
+    leaves = jax.tree_util.tree_leaves(entry.build(**p0),
+                                       is_leaf=lambda x: isinstance(x, MitsubaPlasticDiffuse))
+    if any(isinstance(x, MitsubaPlasticDiffuse) for x in leaves):
+        # Mitsuba's plastic tables (H_KINKED): central differences converge only below the
+        # kinks' spacing, which at this alpha (0.1) and in int_ior is finer than at the
+        # H_KINKED of test_mitsuba_native (alpha 0.2). Measured on mitsuba-roughplastic, the
+        # int_ior derivative (0.0614) is off by 0.96, 3.7e-2, 3.5e-4, 2.7e-6 at steps 1e-6 ..
+        # 1e-9; alpha's by 1.1e-2 .. 1.1e-7. So the step is H_KINKED / 10, and the absolute
+        # tolerance is that step's rounding: eps |sum f| / h = 2.2e-16 * 3.4 / 1e-9 = 7.5e-7.
+        assert_model_gradient_matches_fd(entry.build, wi, wo, p0, rel=1e-5, abs=1e-6,
+                                         h=H_KINKED / 10)
+        return
     assert_model_gradient_matches_fd(entry.build, wi, wo, p0, rel=1e-5, abs=1e-8,
                                      relative_step=True)
