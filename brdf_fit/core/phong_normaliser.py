@@ -129,6 +129,13 @@ def _arvo(c, n, max_n: int):
     return jnp.where(n_int > max_n, jnp.nan, val)
 
 
+# Compiled once per shape and dtype: called outside jit, the incomplete beta's continued fraction
+# and the Arvo loop would otherwise be traced and compiled anew on every call (a loop primitive
+# run eagerly is compiled per trace); inside an enclosing jit these are inlined.
+_mallett_yuksel_jit = jax.jit(_mallett_yuksel)
+_arvo_jit = jax.jit(_arvo, static_argnums=2)
+
+
 def normaliser(cos_o, n, method: str = "mallett-yuksel", max_n: int = ARVO_MAX_N):
     """``N(cos_o, n) = Int_{H+} max(0, r.wi)^n (z.wi) dwi`` (see the module docstring).
 
@@ -143,7 +150,7 @@ def normaliser(cos_o, n, method: str = "mallett-yuksel", max_n: int = ARVO_MAX_N
     cos_o = cos_o.astype(dtype)
     n = n.astype(dtype)
     if method == "mallett-yuksel":
-        return _mallett_yuksel(cos_o, n)
+        return _mallett_yuksel_jit(cos_o, n)
     if method == "arvo":
-        return _arvo(cos_o, n, int(max_n))
+        return _arvo_jit(cos_o, n, int(max_n))
     raise ValueError(f"unknown normaliser method {method!r}; valid: {', '.join(METHODS)}")
