@@ -5,7 +5,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: setup demo test test-all lint bench docs clean
+.PHONY: setup demo test test-slow test-all lint bench docs clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -26,7 +26,10 @@ XDIST  := -n auto --maxprocesses=4 --dist loadfile
 test: $(STAMP)          ## the default test suite (what CI runs)
 	$(BIN)/python -m pytest -q $(XDIST)
 
-test-all: $(STAMP)      ## including the long statistical/convergence tests
+test-slow: $(STAMP)     ## the tests marked slow only (CI runs them after `test`; tests/conftest.py)
+	$(BIN)/python -m pytest -q $(XDIST) -m slow
+
+test-all: $(STAMP)      ## both sets in one run
 	$(BIN)/python -m pytest -q $(XDIST) -m "slow or not slow"
 
 DOCS_STAMP := $(VENV)/.docs-installed

@@ -14,12 +14,16 @@ jax.config.update("jax_numpy_dtype_promotion", "strict")
 
 
 # ----------------------------------------------------------------------------- time budget
+# Two sets, both run by CI (.ci/run): the default set (`make test`, within 12 minutes on 2 idle
+# cores) and the slow set (`make test-slow`, -m slow). `make test-all` runs both in one pytest.
+#
 # The registry-wide contract tests are parametrised over every entry. For the foundation,
-# microfacet entries (CORE, below) all of them run by default; for the catalogue entries
-# (issue 6: 28 more) the default run keeps the cheap ones, the checks (tests/verify/test_checks.py,
-# which make the README's catalogue table true), the hard cases and one chi-square view, and the
-# rest run with `make test-all` (-m "slow or not slow"). Each catalogue model's own test file
-# keeps its finite-difference gradient and reference tests in the default run.
+# microfacet entries (CORE, below) all of them run by default. For the catalogue entries
+# (issue 6, 28: the other ~55) the default set keeps the checks (tests/verify/test_checks.py,
+# which make the README's catalogue table true) and the metadata test; their other contract
+# tests (hard cases, float32, chi-square, horizon, weights, gradients, ...) run in the slow set.
+# Each catalogue model's own test file keeps its finite-difference gradient and reference
+# tests in the default run.
 
 import pytest  # noqa: E402
 
@@ -36,43 +40,37 @@ CORE = {"lambert", "mirror", "cook-torrance", "beckmann", "ggx", "ggx-conductor"
 # its own files:
 # finite-difference gradients, float32 and pdf tests in tests/models/test_phong.py and
 # tests/core/test_phong_normaliser.py, every check at exponent 100 in
-# tests/verify/test_phong_checks.py. Every entry keeps the default checks, the float32 hard
-# cases, the float32-over-intervals test and one chi-square view.
-#: contract tests that run for catalogue entries only in the slow set
+# tests/verify/test_phong_checks.py.
+#: contract tests that run for catalogue entries only in the slow set (stop 36: the hard
+#: cases, float32-over-intervals, default chi-square view, horizon and weight tests joined
+#: them: ~430 s of the default set's ~1,900 s of test time on 2 AMD EPYC cores, stop 35's
+#: profile, when the default set ran 15:53 on idle cores)
 CATALOGUE_SLOW = {
     "tests/models/test_models.py::test_gradients_match_finite_differences",
     "tests/models/test_models.py::test_vmap_over_parameters",
     "tests/models/test_models.py::test_float32_matches_float64",
     "tests/models/test_models.py::test_pdf_integrates_to_one_minus_failure_probability",
     "tests/models/test_models.py::test_batch_shapes_broadcast_and_jit_equals_eager",
+    "tests/models/test_models.py::test_zero_below_horizon_and_non_negative",
+    "tests/models/test_models.py::test_sample_weight_is_eval_cos_over_pdf",
+    "tests/models/test_hard_cases.py::test_values_and_gradients_are_finite",
+    "tests/models/test_hard_cases.py::test_sampling_is_finite_on_hard_cases",
+    "tests/models/test_float32_intervals.py::test_float32_matches_float64_over_intervals",
+    "tests/models/test_sampling.py::test_registry_sampler_matches_pdf",
     "tests/fitting/test_fit_recovery.py::test_noise_free_recovery",
     # the pdf-normalisation and sampling-weight checks (see tests/verify/test_checks.py)
     "tests/verify/test_checks.py::test_registry_samplers_pass_or_declare",
     # the same contract as every entry's default reciprocity check (test_checks.py)
     "tests/models/test_models.py::test_reciprocity",
 }
-#: the chi-square view that runs by default for catalogue entries (the others: slow)
-CATALOGUE_CHI2_VIEW = "0.3"
-#: catalogue entries whose registry chi-square (at the default view too) is in the slow set:
-#: 18-25 s each (measured, stop 22); their own test file runs the chi-square of the exact
-#: half-vector sampler of the specular lobe by default (tests/models/test_ashikhmin_shirley.py);
-#: the mixture with the cosine lobe is tested in `make test-all`
-CHI2_SLOW = {"ashikhmin-shirley", "ashikhmin-shirley-specular"}
-#: catalogue entries whose every jit compiles a quadrature table or a long series (measured
-#: 13-35 s per contract test): only the checks run by default
-COSTLY = {"kelemen", "htsg"}
 #: catalogue entries whose full check run costs 18-25 s each (measured, --durations, stop 14):
-#: their checks run in `make test-all`; each model's own test file keeps its reference and
+#: their checks run in the slow set; each model's own test file keeps its reference and
 #: gradient tests in the default run
 CHECKS_SLOW = {"htsg", "kelemen", "poulin-fournier", "torrance-sparrow-gaussian",
                "ggx-conductor-ms", "ggx-ms-turquin",
                # 8.9 s (stop 22); the same checks run at exponent 100 by default in
                # tests/verify/test_phong_checks.py (10.4 s)
                "phong-energy-normalized-arvo"}
-#: the hard-case grid of catalogue entries runs in float32 by default (where overflow and NaN
-#: appear); its float64 twin runs in the slow set (measured 1.5-4 s per entry, stop 14)
-HARD_CASES = ("tests/models/test_hard_cases.py::test_values_and_gradients_are_finite",
-              "tests/models/test_hard_cases.py::test_sampling_is_finite_on_hard_cases")
 
 #: renderer-native entries (issue 28) whose registry-wide contract tests run in the slow set;
 #: by default they keep the checks (which hold their declared failures true). Each shares its
@@ -122,19 +120,10 @@ def pytest_collection_modifyitems(config, items):
         if name not in registry.names():
             continue
         func = item.nodeid.split("[")[0]
-        slow = func in CATALOGUE_SLOW
-        if func == "tests/models/test_sampling.py::test_registry_sampler_matches_pdf":
-            slow = (str(item.callspec.params.get("cos_o")) != CATALOGUE_CHI2_VIEW
-                    or name in CHI2_SLOW)
         checks_tests = ("tests/verify/test_checks.py::test_registry_models_pass_or_declare",
                         "tests/verify/test_checks.py::test_registry_samplers_pass_or_declare")
-        if name in COSTLY and func not in checks_tests:
-            slow = True
-        if name in CHECKS_SLOW and func in checks_tests:
-            slow = True
-        if func in HARD_CASES and "-f64]" in item.nodeid:
-            slow = True
-        if name in NATIVE_VARIANTS and func not in checks_tests:
-            slow = True
+        slow = (func in CATALOGUE_SLOW
+                or (name in CHECKS_SLOW and func in checks_tests)
+                or (name in NATIVE_VARIANTS and func not in checks_tests))
         if slow:
             item.add_marker(pytest.mark.slow)
