@@ -4,6 +4,7 @@ and the demo writes its ranked result."""
 
 import importlib.util
 import json
+import pathlib
 
 import numpy as np
 import pytest
@@ -225,8 +226,10 @@ def test_plots(csv_data, tmp_path):
         assert path.read_bytes()[:4] == b"\x89PNG"
 
 
-@pytest.mark.slow  # ~45 s on 2 cores: five fits, each compiling its solver
+@pytest.mark.slow  # the whole demo: three fits, plots, selection, checks
 def test_demo(tmp_path, capsys):
+    from brdf_fit.demo import DEMO_FITS
+
     out = tmp_path / "demo"
     assert main(["demo", "--out", str(out), "--json"]) == 0
     captured = capsys.readouterr()
@@ -236,7 +239,10 @@ def test_demo(tmp_path, capsys):
     assert doc["best"] == doc["ranking"][0] == "ggx-conductor"
     rms = [f["residual_rms"] for f in doc["fits"]]
     assert rms == sorted(rms) and [f["model"] for f in doc["fits"]] == doc["ranking"]
-    assert 4 <= len(doc["fits"]) <= 6 and all(f["converged"] for f in doc["fits"])
+    # the models of DEMO_FITS (the demo fitted 4-6 before it was cut to three; this slow test kept
+    # the old count until stop 36, when CI began to run the slow set)
+    assert sorted(f["model"] for f in doc["fits"]) == sorted(m for m, _ in DEMO_FITS)
+    assert all(f["converged"] for f in doc["fits"])
     assert rms[0] < 1.5  # residuals in units of sigma: the true model fits to the noise
     assert abs(doc["ggx_alpha"]["ggx-conductor"] - 0.2) < 0.005
     assert abs(doc["ggx_alpha"]["ggx"] - 0.2) < 0.005
@@ -244,7 +250,9 @@ def test_demo(tmp_path, capsys):
     assert {c["check"] for c in doc["checks"]} == {"non-negative", "reciprocity", "energy"}
     assert all(c["passed"] for c in doc["checks"])
     if importlib.util.find_spec("matplotlib") is not None:
-        assert len(doc["plots"]) == 2
+        # the fits' slices and residuals, and the selection's front (README: three plots)
+        assert sorted(pathlib.Path(p).name for p in doc["plots"]) == [
+            "demo_residuals.png", "demo_selection.png", "demo_slices.png"]
         for p in doc["plots"]:
             with open(p, "rb") as fh:
                 assert fh.read(8) == b"\x89PNG\r\n\x1a\n"
