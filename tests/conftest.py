@@ -60,8 +60,6 @@ CATALOGUE_SLOW = {
     "tests/models/test_float32_intervals.py::test_float32_matches_float64_over_intervals",
     "tests/models/test_sampling.py::test_registry_sampler_matches_pdf",
     "tests/fitting/test_fit_recovery.py::test_noise_free_recovery",
-    # the pdf-normalisation and sampling-weight checks (see tests/verify/test_checks.py)
-    "tests/verify/test_checks.py::test_registry_samplers_pass_or_declare",
     # the same contract as every entry's default reciprocity check (test_checks.py)
     "tests/models/test_models.py::test_reciprocity",
 }
@@ -113,8 +111,9 @@ SLOW_TESTS = {
     # the DFG integrand reference of the albedo tables (15.5 s; tests/tables/test_dfg.py holds
     # the DFG values to SciPy by default)
     "tests/tables/test_albedo_tables.py::test_ggx_albedo_table_equals_the_dfg_integrand",
-    # the sampling checks of the core entries (10 s; their chi-square tests stay, which a pdf
-    # that does not integrate to 1 - P(fail) fails)
+    # the sampling checks (pdf-normalisation, sampling-weight) of every entry: for the core
+    # entries 10 s; their chi-square tests stay, which a pdf that does not integrate to
+    # 1 - P(fail) fails
     "tests/verify/test_checks.py::test_registry_samplers_pass_or_declare",
     # the choice follows the committed cost table (6.8 s)
     "tests/selection/test_anisotropy.py::test_the_choice_follows_the_committed_costs_not_this_runs_timings",
@@ -129,7 +128,7 @@ SLOW_TESTS = {
 #: the chi-square of the microfacet sampling strategies and of the core entries at this view
 #: runs in the slow set (the other two views, 0.3 and grazing 0.03, by default: 42 s and 22 s
 #: for the three, stop 35's profile)
-STRATEGY_CHI2_SLOW_VIEW = "0.9"
+CHI2_SLOW_VIEW = "0.9"
 
 
 def _entry_of(item):
@@ -150,7 +149,7 @@ def pytest_collection_modifyitems(config, items):
                 or (func in HARD_CASES and "-f64]" in item.nodeid))
         if func in ("tests/models/test_sampling.py::test_microfacet_strategy_matches_pdf",
                     "tests/models/test_sampling.py::test_registry_sampler_matches_pdf"):
-            slow = slow or str(item.callspec.params.get("cos_o")) == STRATEGY_CHI2_SLOW_VIEW
+            slow = slow or str(item.callspec.params.get("cos_o")) == CHI2_SLOW_VIEW
         name = _entry_of(item)
         if name is not None and name not in CORE:
             from brdf_fit import registry

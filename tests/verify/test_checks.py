@@ -33,8 +33,8 @@ def test_the_phong_family_is_checked_in_its_own_file():
 
 
 #: the checks that draw 200,000 samples per view (60-80% of an entry's check time, measured
-#: stop 24): by default only for the foundation entries (tests/conftest.py CORE), for the others
-#: in the slow set (which CI runs after the default set). Their contracts are also held by the
+#: stop 24): in the slow set for every entry (tests/conftest.py SLOW_TESTS; CI runs it after the
+#: default set). Their contracts are also held by the
 #: chi-square test against the sampler (a pdf that does not integrate to 1 - P(fail) fails it:
 #: tests/models/test_sampling.py; test_pdf_scaled_is_rejected below shows it rejecting a pdf 10%
 #: too large) and by tests/models/test_models.py::test_sample_weight_is_eval_cos_over_pdf (the
