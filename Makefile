@@ -20,7 +20,8 @@ demo: $(STAMP)          ## the main job on its embedded default
 
 # the suite runs in parallel, one process per core (pytest-xdist; whole files per worker, so a
 # file's tests share their compilations; ~94% of the time is XLA compiling). The default set:
-# 11:21 for 1756 tests on 2 idle AMD EPYC cores from a fresh clone (2026-12-05, commit 724871b);
+# 10:20-11:21 for 1756 tests on 2 idle AMD EPYC cores from fresh clones (2026-12-05, commits
+# 724871b and 4b95698);
 # the slow set (`test-slow`, which CI runs too): 32:40 for 1604 tests from the same clone
 # (CI in all, setup + test + docs + test-slow: ~48 minutes there)
 XDIST  := -n auto --maxprocesses=4 --dist loadfile
