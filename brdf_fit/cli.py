@@ -60,6 +60,20 @@ def _positive_int(text: str) -> int:
     return v
 
 
+def _positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (v > 0 and math.isfinite(v)):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
+    return v
+
+
+#: seconds after which `brdf-fit fit` stops a large (chunked) fit that has not converged
+FIT_TIME_LIMIT = 60.0
+
+
 class CLIError(Exception):
     """A user error: printed as one line, exit status 2."""
 
@@ -223,6 +237,26 @@ class _Progress:
     def close(self) -> None:
         if self.enabled and self.tty:
             print("\r" + " " * 78 + "\r", end="", file=sys.stderr, flush=True)
+
+
+class _StepProgress(_Progress):
+    """The steps of a chunked fit (``fit(progress=...)``) on stderr: the stage, the step and
+    the loss, one line per step (rewritten in place on a terminal)."""
+
+    def __init__(self, n_samples: int, enabled: bool = True):
+        super().__init__(0, enabled)
+        self.n_samples = n_samples
+
+    def __call__(self, stage: str, step: int, loss: float) -> None:
+        if not self.enabled:
+            return
+        where = ("a random subset" if stage == "coarse"
+                 else f"all {self.n_samples:,} samples")
+        msg = f"  step {step} on {where}: loss {loss:.6g}"
+        if self.tty:
+            print("\r" + msg.ljust(78), end="", file=sys.stderr, flush=True)
+        else:
+            print(msg, file=sys.stderr, flush=True)
 
 
 def _print_check_table(results) -> None:
@@ -461,10 +495,15 @@ def cmd_fit(args) -> int:
         print(f"fitting {entry.name} to {data.n} samples x {data.n_channels} channels "
               f"(metric {args.metric}, {args.multistart} start(s)) ...", file=sys.stderr,
               flush=True)
-    result = fit(data, entry.name, fix=fix, init=init, metric=args.metric, solver=args.solver,
-                 cos_weight=args.cos_weight, max_zenith_deg=args.max_zenith_deg,
-                 multistart=args.multistart, seed=args.seed, max_steps=args.max_steps,
-                 checks=checks, guess=args.guess)
+    progress = _StepProgress(data.n, enabled=not args.quiet)
+    try:
+        result = fit(data, entry.name, fix=fix, init=init, metric=args.metric,
+                     solver=args.solver, cos_weight=args.cos_weight,
+                     max_zenith_deg=args.max_zenith_deg, multistart=args.multistart,
+                     seed=args.seed, max_steps=args.max_steps, checks=checks, guess=args.guess,
+                     time_limit=args.time_limit, progress=progress)
+    finally:
+        progress.close()
     exported = None
     if export_kind is not None:
         exported = _write_export(export_kind, args.export, entry.name, result.params, data,
@@ -1884,6 +1923,10 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--seed", type=int, default=0, help="seed of multistart and --max-samples")
     f.add_argument("--max-samples", type=_positive_int, default=None, metavar="N",
                    help="fit a seeded random subset of N samples (e.g. of a MERL file)")
+    f.add_argument("--time-limit", type=_positive_float, default=FIT_TIME_LIMIT, metavar="S",
+                   help="stop a fit of large data (solved in chunks: a whole MERL file) that "
+                        f"has not converged after S seconds, reported as not converged "
+                        f"(default {FIT_TIME_LIMIT:g})")
     f.add_argument("--check", action="append", metavar="NAME",
                    help="run this check on the fitted model (repeatable)")
     f.add_argument("--target", default=None, metavar="T",

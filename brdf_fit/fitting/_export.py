@@ -282,3 +282,21 @@ class ExportedCall:
             self.stats["fallback"] += 1
             self._calls[signature(args)] = self.jitted
             return self.jitted(*args)
+
+
+def export_key(problem, key) -> str | None:
+    """The text that decides the programs of a fit of ``problem`` (a
+    :class:`~brdf_fit.fitting.problem.FitProblem`) across processes (:class:`ExportedCall`;
+    ``key``: the caller's static key, whose first item is ``problem.key``), or None where it
+    cannot be trusted to: only the package's own registry models (a model registered by a
+    script, or a built model, may change without the package's source hash changing), and only
+    a key whose text holds no object addresses."""
+    src = problem.source
+    if not (isinstance(key[0][0], tuple) and key[0][0][:1] == ("registry",)):
+        return None
+    builder = getattr(getattr(src, "entry", None), "builder", None)
+    module = getattr(builder, "__module__", None) or ""
+    if not module.startswith("brdf_fit."):
+        return None
+    text = repr(key)
+    return None if " at 0x" in text else text

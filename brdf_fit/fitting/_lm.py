@@ -28,11 +28,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from brdf_fit.fitting.problem import stderr_codes
-from brdf_fit.fitting.single import covariance_normal, solve
+from brdf_fit.fitting.solvers import covariance_normal, solve
 
 __all__ = ["LMState", "gather", "data_axes", "lanes", "directions", "tangents", "normal",
-           "quad", "lm_init", "lm_chunk", "optx_chunk", "finalise_one", "finalise_state",
-           "grouped"]
+           "quad", "lm_init", "lm_step", "lm_propose", "lm_update",
+           "newton_converged", "lm_chunk", "optx_chunk",
+           "finalise_one", "finalise_state", "grouped"]
 
 #: Initial damping of batch-lm relative to max(diag(J^T J)) (Madsen, Nielsen & Tingleff,
 #: "Methods for non-linear least squares problems", DTU 2004, section 3.2: 1e-6 for a good start,
@@ -296,10 +297,15 @@ def lm_step(problem, dq, sandwich, s: LMState, a, fx) -> LMState:
     Jacobian columns (MINPACK's gtol test, :data:`GTOL_SQRT_EPS`); or, not converged, after
     :data:`STALL_STEPS` accepted steps in a row that changed the loss by less than the tolerance
     while the step stayed long (a parameter sliding onto the plateau of its transform)."""
-    dtype = s.u.dtype
-    rtol, atol = s.tol[0], s.tol[1]
-    active = ~s.done & (s.steps < s.limit)
-    cost, A, g = s.cost, s.A, s.g
+    du, u_new, lam, scale = lm_propose(s)
+    return lm_update(s, du, u_new, lam, scale, quad(problem, dq, u_new, a, fx, sandwich))
+
+
+def lm_propose(s: LMState):
+    """The first half of :func:`lm_step`: the damped step ``du`` from the carried normal
+    equations, the trial point ``u_new = u + du``, the damping ``lam`` and the Marquardt
+    ``scale`` it used. No model evaluation (the caller evaluates :func:`quad` at ``u_new``)."""
+    A, g = s.A, s.g
     d = jnp.diagonal(A)
     if MARQUARDT_SCALING:
         scale = jnp.maximum(s.scale, d)
@@ -314,8 +320,29 @@ def lm_step(problem, dq, sandwich, s: LMState, a, fx) -> LMState:
     # safeguard: no step longer than STEP_MAX in the unconstrained space (a logistic
     # parameter pushed far past its bound lands on a plateau with zero gradient)
     du = du * jnp.minimum(1.0, STEP_MAX / jnp.maximum(jnp.sqrt(jnp.sum(du * du)), DIV_FLOOR))
-    u_new = s.u + du
-    cost_new, A_new, g_new, meat_new = quad(problem, dq, u_new, a, fx, sandwich)
+    return du, s.u + du, lam, scale
+
+
+def newton_converged(u, cost, A, g, rtol, atol):
+    """True where the undamped Gauss-Newton step ``-A^-1 g`` from ``u`` would pass the Cauchy
+    test by its quadratic model: ``max|dn / (atol + rtol |u|)| < 1`` and the Gauss-Newton
+    decrement ``0.5 g^T A^-1 g < atol + rtol * cost`` (:func:`lm_update`'s second test)."""
+    dn = -jax.scipy.linalg.cho_solve((jnp.linalg.cholesky(A), True), g)
+    return (jnp.all(jnp.isfinite(dn))
+            & (jnp.max(jnp.abs(dn) / (atol + rtol * jnp.abs(u))) < 1.0)
+            & (-0.5 * jnp.dot(g, dn) < atol + rtol * cost))
+
+
+def lm_update(s: LMState, du, u_new, lam, scale, q_new) -> LMState:
+    """The second half of :func:`lm_step`: accept or reject the trial point ``u_new`` of
+    :func:`lm_propose` from its loss and normal equations ``q_new`` (:func:`quad`), test
+    convergence, and update the damping (:func:`lm_step`'s docstring says how)."""
+    dtype = s.u.dtype
+    rtol, atol = s.tol[0], s.tol[1]
+    active = ~s.done & (s.steps < s.limit)
+    cost, A, g = s.cost, s.A, s.g
+    d = jnp.diagonal(A)
+    cost_new, A_new, g_new, meat_new = q_new
     pred = -jnp.dot(g, du) - 0.5 * jnp.dot(du, A @ du)
     actual = cost - cost_new
     rho = jnp.where(pred > 0, actual / jnp.where(pred > 0, pred, 1.0), -1.0)
@@ -327,10 +354,7 @@ def lm_step(problem, dq, sandwich, s: LMState, a, fx) -> LMState:
     # loss is above the local minimum; Boyd & Vandenberghe 2004, section 9.5.1): when that
     # step would pass, u_new is converged and the step that would only confirm it is not
     # taken (measured, 10,000 GGX fits: mean 8.2 -> 5.6 steps, losses equal to 6e-12)
-    dn = -jax.scipy.linalg.cho_solve((jnp.linalg.cholesky(A_new), True), g_new)
-    newton = (jnp.all(jnp.isfinite(dn))
-              & (jnp.max(jnp.abs(dn) / (atol + rtol * jnp.abs(u_new))) < 1.0)
-              & (-0.5 * jnp.dot(g_new, dn) < atol + rtol * cost_new))
+    newton = newton_converged(u_new, cost_new, A_new, g_new, rtol, atol)
     conv = (accept & ((small_step & small_df) | newton)) | (cost == 0)
     stuck = ~accept & (lam * s.nu > LAM_MAX * jnp.max(d))
     # stuck at machine precision: a minimum if the residual is orthogonal to the Jacobian
@@ -396,7 +420,7 @@ def lm_chunk(problem, n_steps, group, sandwich, idx, data,
 
 def optx_chunk(problem, solver, rtol, atol, n_steps, idx, data, state: LMState,
                fixed) -> LMState:
-    """``n_steps`` of an optimistix solver (:func:`brdf_fit.fitting.single.solve`), restarted
+    """``n_steps`` of an optimistix solver (:func:`brdf_fit.fitting.solvers.solve`), restarted
     from the current iterate (optimistix does not expose its state between solves)."""
 
     def one(s, a, fx):

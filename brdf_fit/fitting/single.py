@@ -47,7 +47,7 @@ import dataclasses
 import math
 import time
 import warnings
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import jax
@@ -56,8 +56,9 @@ import numpy as np
 
 from brdf_fit.core.validate import ParameterError, PrecisionWarning
 from brdf_fit.data import GonioData
+from brdf_fit.fitting import chunked as _chunked
 from brdf_fit.fitting import guess as _guess
-from brdf_fit.fitting._export import ExportedCall
+from brdf_fit.fitting._export import ExportedCall, export_key
 from brdf_fit.fitting.problem import (
     DATA_SCALE_FLOOR,
     METRICS,
@@ -75,95 +76,26 @@ from brdf_fit.fitting.problem import (
     stderr_notes,
     undetermined,
 )
+from brdf_fit.fitting.solvers import (
+    BUCKETS_PER_OCTAVE,
+    MIN_BUCKET,
+    SOLVERS,
+    _solver_classes,
+    bucket,
+    covariance,
+    covariance_normal,
+    solve,
+)
 
 __all__ = ["FitResult", "fit", "solve", "covariance", "covariance_normal", "METRICS", "SOLVERS",
-           "RELATIVE_FLOOR", "Transform", "FitError", "FitProblem", "at_bound"]
-
-
-def _quiet(*args, **kwargs):
-    return None
-
-
-_SOLVER_CLASSES: dict = {}
-
-
-def _solver_classes() -> dict:
-    """The solver classes, made on first use: optimistix (with lineax) is imported only when a
-    solver is traced, not by a process that runs exported programs only
-    (:mod:`brdf_fit.fitting._export`; 0.1-0.2 s of a warm ``brdf-fit fit``)."""
-    if not _SOLVER_CLASSES:
-        import optimistix as optx
-
-        class LineSearchGaussNewton(optx.AbstractGaussNewton):
-            """Gauss-Newton steps (``optx.NewtonDescent`` on the normal equations) globalised by
-            a backtracking Armijo line search (Nocedal & Wright, *Numerical Optimization*, 2nd
-            ed. 2006, algorithm 3.1 and section 10.3). Plain Gauss-Newton
-            (``optx.GaussNewton``, step length 1) diverges from a start as far as alpha = 0.4
-            for a truth of 0.23 in GGX fits (measured: it ran to the alpha = 1 bound); the line
-            search keeps each step a descent step."""
-
-            rtol: float
-            atol: float
-            norm: Callable = optx.max_norm
-            descent: optx.NewtonDescent = optx.NewtonDescent()
-            search: optx.BacktrackingArmijo = optx.BacktrackingArmijo()
-            verbose: Callable = _quiet
-
-        LineSearchGaussNewton.__module__ = __name__
-        LineSearchGaussNewton.__qualname__ = "LineSearchGaussNewton"
-        _SOLVER_CLASSES.update({
-            "lm": optx.LevenbergMarquardt,
-            "levenberg-marquardt": optx.LevenbergMarquardt,
-            "gauss-newton": LineSearchGaussNewton,
-            "gauss-newton-plain": optx.GaussNewton,
-            "dogleg": optx.Dogleg,
-        })
-    return _SOLVER_CLASSES
-
-
-class _Solvers(Mapping):
-    """Solver name -> optimistix solver class; the names without importing optimistix."""
-
-    _NAMES = ("lm", "levenberg-marquardt", "gauss-newton", "gauss-newton-plain", "dogleg")
-
-    def __getitem__(self, name):
-        if name not in self._NAMES:
-            raise KeyError(name)
-        return _solver_classes()[name]
-
-    def __iter__(self):
-        return iter(self._NAMES)
-
-    def __len__(self):
-        return len(self._NAMES)
-
-    def __contains__(self, name):
-        return name in self._NAMES
-
-
-SOLVERS = _Solvers()
+           "RELATIVE_FLOOR", "Transform", "FitError", "FitProblem", "at_bound", "bucket",
+           "BUCKETS_PER_OCTAVE", "MIN_BUCKET"]
 
 
 def __getattr__(name: str):
-    if name == "LineSearchGaussNewton":
+    if name == "LineSearchGaussNewton":  # made on first use (brdf_fit.fitting.solvers)
         return _solver_classes()["gauss-newton"]
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def solve(problem: FitProblem, u0, arrays, solver="lm", rtol=1e-10, atol=1e-10, max_steps=256,
-          residuals=None):
-    """Pure-JAX least-squares solve from ``u0``; returns ``(u, converged, steps)`` (``u`` is
-    differentiable with respect to ``arrays`` by optimistix's implicit adjoint).
-    ``residuals(u, arrays)``: the flat residual (default :meth:`FitProblem.residuals`)."""
-    import optimistix as optx
-
-    cls = SOLVERS[solver]
-    res = problem.residuals if residuals is None else residuals
-    sol = optx.least_squares(
-        lambda u, a: res(u, a), cls(rtol=rtol, atol=atol), u0, args=arrays,
-        max_steps=max_steps, throw=False,
-    )
-    return sol.value, sol.result == optx.RESULTS.successful, sol.stats["num_steps"]
 
 
 # ----------------------------------------------------------------------------- results
@@ -240,54 +172,6 @@ def json_floats(v):
     return [json_floats(x) for x in a]
 
 
-def covariance(J, r, m_eff, sandwich: bool):
-    """Parameter covariance from the residual Jacobian ``J`` (m, p) and residuals ``r`` (m,) at
-    the optimum, ``m_eff`` samples that carry weight (see the module docstring): ``sandwich=False``
-    ``s^2 (J^T J)^+`` with ``s^2 = RSS/(m_eff - p)``; ``sandwich=True`` the HC1 estimator
-    ``m_eff/(m_eff - p) (J^T J)^+ (J^T diag(r^2) J) (J^T J)^+``. NumPy or JAX arrays (jit/vmap)."""
-    with np.errstate(invalid="ignore", over="ignore"):  # inf/NaN input: NaN out, as a flag
-        Jr = J * r[:, None]
-        return covariance_normal(J.T @ J, None if not sandwich else Jr.T @ Jr,
-                                 (r * r).sum(), m_eff)
-
-
-def covariance_normal(A, meat, rss, m_eff):
-    """:func:`covariance` from the normal-equation quantities: ``A = J^T J`` (p, p), the
-    sandwich's ``meat = J^T diag(r^2) J`` (None: the pooled estimator) and ``rss = sum r^2``
-    (what the batch solver computes without forming ``J``)."""
-    xp = jnp if any(isinstance(x, jax.Array) for x in (A, meat, rss)) else np
-    p = A.shape[-1]
-    dof = max(int(m_eff) - p, 1) if isinstance(m_eff, int) else xp.maximum(m_eff - p, 1)
-    # non-finite input: NaN, never an SVD of inf/NaN (numpy's pinv spun for 14+ minutes on one)
-    finite = xp.all(xp.isfinite(A)) & xp.all(xp.isfinite(rss))
-    if meat is not None:
-        finite = finite & xp.all(xp.isfinite(meat))
-    if xp is np and not finite:
-        return np.full(A.shape, np.nan)
-    if xp is jnp:  # traced: the SVD runs on a harmless stand-in, the result is masked
-        A = jnp.where(finite, A, jnp.eye(p, dtype=A.dtype))
-        meat = None if meat is None else jnp.where(finite, meat, 0.0)
-    bread = xp.linalg.pinv(A)
-    cov = rss / dof * bread if meat is None else (m_eff / dof) * (bread @ meat @ bread)
-    return cov if xp is np else jnp.where(finite, cov, jnp.nan)
-
-
-#: sample counts are padded up to a bucket (:func:`bucket`) so that fits of data of nearby sizes
-#: share one compiled solver: at most 1/BUCKETS_PER_OCTAVE (12.5%) more samples, and
-#: BUCKETS_PER_OCTAVE shapes per doubling of the sample count
-BUCKETS_PER_OCTAVE = 8
-#: no bucket is smaller than this
-MIN_BUCKET = 64
-
-
-def bucket(n: int) -> int:
-    """The padded sample count of ``n`` samples (``n`` itself when it is a bucket)."""
-    if n <= MIN_BUCKET:
-        return MIN_BUCKET
-    step = 2 ** max(int(math.floor(math.log2(n))) - int(math.log2(BUCKETS_PER_OCTAVE)), 0)
-    return -(-n // step) * step
-
-
 def _pad(arrays, n: int, at_least: int | None = None):
     """``arrays`` of :func:`_arrays` (``n`` samples) padded to :func:`bucket` (n) samples that do
     not count: weight 0 (their residuals are exactly 0: the metric multiplies by sqrt(w), or
@@ -314,14 +198,15 @@ def _arrays(data: GonioData, max_zenith_deg, dtype):
         keep &= (data.wi[:, 2] >= cz) & (data.wo[:, 2] >= cz)
     if not keep.any():
         raise FitError(f"no samples left after the max_zenith_deg cut ({max_zenith_deg} deg)")
-    w = data.weight[keep]
-    f = data.value[keep]
+    def kept(a):  # no copy where every sample is kept (a whole MERL file: 100 MB less)
+        return None if a is None else np.asarray(a if keep.all() else a[keep], dtype)
+
+    f = kept(data.value)
     floor = RELATIVE_FLOOR * max(float(np.max(np.abs(f))), DATA_SCALE_FLOOR)
     # NumPy arrays (the jitted functions take them as they are): padding and subsampling them
     # are then no eager JAX operations
-    sigma = None if data.sigma is None else np.asarray(data.sigma[keep], dtype)
-    return (np.asarray(data.wi[keep], dtype), np.asarray(data.wo[keep], dtype),
-            np.asarray(f, dtype), np.asarray(w, dtype), sigma, floor), int(keep.sum())
+    return (kept(data.wi), kept(data.wo), f, kept(data.weight), kept(data.sigma),
+            floor), int(keep.sum())
 
 
 @dataclasses.dataclass(frozen=True)
@@ -351,23 +236,6 @@ def _finish(problem, u, a):
     return phys, x, r, J
 
 
-def _export_key(problem: FitProblem, key) -> str | None:
-    """The text that decides the programs of :func:`_compiled` across processes
-    (:class:`brdf_fit.fitting._export.ExportedCall`), or None where it cannot be trusted to:
-    only the package's own registry models (a model registered by a script, or a built
-    model, may change without the package's source hash changing), and only a key whose text
-    holds no object addresses."""
-    src = problem.source
-    if not (isinstance(key[0][0], tuple) and key[0][0][:1] == ("registry",)):
-        return None
-    builder = getattr(getattr(src, "entry", None), "builder", None)
-    module = getattr(builder, "__module__", None) or ""
-    if not module.startswith("brdf_fit."):
-        return None
-    text = repr(key)
-    return None if " at 0x" in text else text
-
-
 _JITTED: dict = {}
 #: compiled problems kept (oldest dropped first); a select over ten candidates uses ten
 MAX_JITTED = 64
@@ -392,7 +260,7 @@ def _compiled(problem: FitProblem, n_channels: int, solver, rtol, atol, max_step
         return template.with_fixed(fx)
 
     C = int(n_channels)
-    static = _export_key(problem, key)
+    static = export_key(problem, key)
     got = _Jitted(
         run=ExportedCall(jax.jit(lambda u, a, fx: _run_and_loss(P(fx), u, a, solver, rtol, atol,
                                                                 max_steps)), "run", static),
@@ -405,6 +273,37 @@ def _compiled(problem: FitProblem, n_channels: int, solver, rtol, atol, max_step
         _JITTED.pop(next(iter(_JITTED)))
     _JITTED[key] = got
     return got
+
+
+#: what a fit that did not converge tells its user to try
+NOT_CONVERGED_ADVICE = ("; try a start nearer the answer (init), holding fixed what the data do "
+                        "not determine (fix; see the undetermined entries), a fit of a subset "
+                        "first, or a model that represents the data")
+
+
+def _dense_stderr(jitted, u, arrays, fx, real: int, m_eff: int, sandwich: bool, p: int):
+    """``(physical parameters, standard errors (flat), residual rms, stderr codes, finite)``
+    of the dense path at ``u``: the residuals and their Jacobian in the physical parameters,
+    jitted (eagerly, each of the ~90 operations compiles on its own: 3-5 s per fit, measured);
+    the padded samples' residuals (zero) and Jacobian rows are dropped (``real`` rows)."""
+    phys, flat_phys, r, J = jitted.finish(u, arrays, fx)
+    r = np.asarray(r)[:real]
+    params = {k: np.asarray(v) for k, v in phys.items()}
+    rms = float(np.sqrt(np.mean(r**2))) if r.size else 0.0
+    if not p:
+        return params, np.zeros(0), rms, np.zeros(0, int), True
+    J = np.asarray(J)[:real]
+    finite = bool(np.all(np.isfinite(J)) and np.all(np.isfinite(r)))
+    # J^T J of finite J may still overflow: stderr_codes tests the product itself
+    with np.errstate(over="ignore"):
+        codes = (stderr_codes(J.T @ J) if finite
+                 else stderr_codes(np.full((p, p), np.nan), False))
+    try:
+        cov = covariance(J, r, m_eff, sandwich=sandwich) if finite else None
+        se = np.sqrt(np.maximum(np.diag(cov), 0.0)) if finite else np.full(p, np.nan)
+    except np.linalg.LinAlgError:
+        se = np.full(p, np.nan)
+    return params, se, rms, codes, finite
 
 
 def fit(
@@ -426,6 +325,8 @@ def fit(
     free: Sequence[str] | None = None,
     bounds: dict | None = None,
     pad_to: int | None = None,
+    time_limit: float | None = None,
+    progress: Callable | None = None,
 ) -> FitResult:
     """Fit ``model`` to ``data``: a registry name (or :class:`~brdf_fit.core.params.Entry`),
     or any built model (an :class:`~brdf_fit.models.AbstractBRDF` pytree, composed or not),
@@ -451,6 +352,12 @@ def fit(
     ``pad_to``: pad the samples (weight 0, not counted anywhere) to the bucket of at least this
     many, so that a series of fits of different sizes shares one compiled solver (every fit pads
     to :func:`bucket` of its own size anyway).
+
+    Large data (at least :data:`brdf_fit.fitting.chunked.CHUNKED_FROM` residuals) with the
+    default solver are fitted by :mod:`brdf_fit.fitting.chunked`: normal equations summed over
+    chunks of samples (memory flat in the number of samples), a coarse stage on a random subset
+    first. There ``time_limit`` (seconds) stops a solve that has not converged by then
+    (reported as such), and ``progress(stage, step, loss)`` is called after every step.
     """
 
     t0 = time.perf_counter()
@@ -473,7 +380,6 @@ def fit(
             "jax.config.update('jax_enable_x64', True) first (the command line does)"),
             stacklevel=2)
     arrays, n_used = _arrays(data, max_zenith_deg, dtype)
-    arrays = _pad(arrays, n_used, pad_to)
     C = data.n_channels
     defaults = source.defaults()
     start, fixed = {}, {}
@@ -503,37 +409,44 @@ def fit(
         u0 = np.asarray(_guess.pick(np, cands, losses, _guess.layout(problem, vary),
                                     _guess.channel_index(problem, C)))
     rng = np.random.default_rng(seed)
-    best = None
-    for s in range(max(1, multistart)):
-        u_start = u0 if s == 0 else u0 + rng.normal(0.0, 1.0, u0.shape)
-        *sol, loss = jitted.run(jnp.asarray(u_start, dtype), arrays, fx)
-        loss = float(loss)
-        if best is None or loss < best[1]:
-            best = (sol, loss)
-    (u, ok, steps), loss = best
-    # standard errors: Jacobian w.r.t. the free physical parameters, flattened; jitted (eagerly,
-    # each of the ~90 operations compiles on its own: 3-5 s per fit, measured)
-    phys, flat_phys, r, J = jitted.finish(u, arrays, fx)
-    real = n_used * C  # the padded samples' residuals (zero) and Jacobian rows are dropped
-    r = np.asarray(r)[:real]
+    starts = [u0 if s == 0 else u0 + rng.normal(0.0, 1.0, u0.shape)
+              for s in range(max(1, multistart))]
     m_eff = int(np.sum(np.asarray(arrays[3]).reshape(-1) > 0))
-    p = int(flat_phys.shape[0])
-    stderr, codes = {}, np.zeros(p, int)
-    params = {k: np.asarray(v) for k, v in phys.items()}
+    sandwich = arrays[4] is None
+    p = int(layout.size)
+    stopped = ""
+    if solver == "lm" and n_used * C >= _chunked.CHUNKED_FROM and p:
+        # large data: normal equations summed over chunks, coarse to fine (fitting.chunked)
+        cdata = _chunked.chunk_data(problem, arrays, n_used, seed)
+        del arrays  # the chunks hold the data now (on the device)
+        best = None
+        for u_start in starts:
+            sol = _chunked.solve_chunked(problem, np.asarray(u_start, dtype), cdata, C,
+                                         sandwich, max_steps, rtol, atol, time_limit,
+                                         progress)
+            if best is None or sol.cost < best.cost:
+                best = sol
+        ok, steps, stopped = best.converged, best.steps, best.stopped
+        params, se, loss, rms, codes = _chunked.finish_chunked(problem, best, C, m_eff,
+                                                              n_used * C, sandwich)
+        finite = bool(np.isfinite(best.A).all() and math.isfinite(best.cost))
+    else:
+        arrays = _pad(arrays, n_used, pad_to)
+        best = None
+        for u_start in starts:
+            *sol, loss = jitted.run(jnp.asarray(u_start, dtype), arrays, fx)
+            loss = float(loss)
+            if best is None or loss < best[1]:
+                best = (sol, loss)
+        (u, ok, steps), loss = best
+        params, se, rms, codes, finite = _dense_stderr(jitted, u, arrays, fx, n_used * C,
+                                                       m_eff, sandwich, p)
+    stderr = {}
     if p:
-        J = np.asarray(J)[:real]
-        finite = bool(np.all(np.isfinite(J)) and np.all(np.isfinite(r)))
-        # J^T J of finite J may still overflow: stderr_codes tests the product itself
-        with np.errstate(over="ignore"):
-            codes = (stderr_codes(J.T @ J) if finite
-                     else stderr_codes(np.full((p, p), np.nan), False))
-        try:
-            cov = covariance(J, r, m_eff, sandwich=arrays[4] is None) if finite else None
-            se = np.sqrt(np.maximum(np.diag(cov), 0.0)) if finite else np.full(p, np.nan)
-        except np.linalg.LinAlgError:
-            se = np.full(p, np.nan)
         bound = layout.join({n: at_bound(tr, params[n])
                              for n, tr in zip(free, layout.transforms, strict=True)}, xp=np)
+        if not finite:
+            codes = np.full(p, 3)
         codes = np.where((codes != 3) & bound, 1, codes)  # the more specific reason
         se = np.where(codes == 0, se, np.nan)
         stderr = layout.split(se)
@@ -558,7 +471,7 @@ def fit(
         steps=int(steps),
         metric=metric,
         loss=loss,
-        residual_rms=float(np.sqrt(np.mean(r**2))) if r.size else 0.0,
+        residual_rms=rms,
         n_samples=n_used,
         n_params=p,
         seconds=0.0,
@@ -566,7 +479,10 @@ def fit(
         starts=max(1, multistart),
         message="" if converged else (
             "non-finite residuals or Jacobian at the optimum: standard errors undefined"
-            if (codes == 3).any() else f"did not converge in {max_steps} steps"),
+            if (codes == 3).any() else
+            (f"stopped at the time limit ({time_limit:g} s) before converging"
+             if stopped == "time_limit" else f"did not converge in {max_steps} steps")
+            + NOT_CONVERGED_ADVICE),
         stderr_note=notes,
         at_bound=tuple(n for n, tr in zip(free, layout.transforms, strict=True)
                        if at_bound(tr, params[n]).any()),

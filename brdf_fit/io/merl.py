@@ -100,28 +100,26 @@ def merl_indices(wi, wo) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return ith, itd, ipd
 
 
-def _centre_angles():
-    ith, itd, ipd = np.meshgrid(
-        np.arange(N_TH), np.arange(N_TD), np.arange(N_PD), indexing="ij"
-    )
-    theta_h = ((ith.ravel() + 0.5) / N_TH) ** 2 * _HALF_PI
-    theta_d = (itd.ravel() + 0.5) / N_TD * _HALF_PI
-    phi_d = (ipd.ravel() + 0.5) / N_PD * np.pi
-    return theta_h, theta_d, phi_d
-
-
 def merl_bin_centres() -> tuple[np.ndarray, np.ndarray]:
     """``(wi, wo)``, each (1458000, 3), of every bin centre in file order (phi_h = 0).
 
     Some centres lie below the horizon (``wi[:, 2] <= 0`` or ``wo[:, 2] <= 0``); those bins are
-    stored as missing."""
-    theta_h, theta_d, phi_d = _centre_angles()
+    stored as missing. Made one theta_h row at a time (the difference directions of a row are
+    the same in every row), so that nothing but the two results is ever full size (the whole
+    grid at once held ~260 MB of temporaries while a MERL file was read)."""
+    itd, ipd = np.meshgrid(np.arange(N_TD), np.arange(N_PD), indexing="ij")
+    theta_d = (itd.ravel() + 0.5) / N_TD * _HALF_PI
+    phi_d = (ipd.ravel() + 0.5) / N_PD * np.pi
     st = np.sin(theta_d)
     d = np.stack([st * np.cos(phi_d), st * np.sin(phi_d), np.cos(theta_d)], -1)
-    wi = _rotate(d, _Y, theta_h)
-    h = np.stack([np.sin(theta_h), np.zeros_like(theta_h), np.cos(theta_h)], -1)
-    wo = 2.0 * np.sum(wi * h, -1, keepdims=True) * h - wi
-    return wi, wo
+    wi = np.empty((N_TH, N_TD * N_PD, 3))
+    wo = np.empty_like(wi)
+    for i in range(N_TH):
+        theta_h = np.full(d.shape[0], ((i + 0.5) / N_TH) ** 2 * _HALF_PI)
+        wi[i] = _rotate(d, _Y, theta_h)
+        h = np.stack([np.sin(theta_h), np.zeros_like(theta_h), np.cos(theta_h)], -1)
+        wo[i] = 2.0 * np.sum(wi[i] * h, -1, keepdims=True) * h - wi[i]
+    return wi.reshape(N_BINS, 3), wo.reshape(N_BINS, 3)
 
 
 def _evaluate(fn_or_model, wi, wo, chunk):
@@ -183,33 +181,37 @@ def write_merl(path, fn_or_model, chunk: int = 262144) -> None:
 
 
 def _read_raw(path) -> np.ndarray:
-    """Raw payload as (3, 90, 90, 180) after checking header and size."""
+    """Raw payload as (3, 90, 90, 180) after checking header and size: both from the first
+    12 bytes and the file's size, before the payload is read (a 6 GiB file with a valid header
+    was read whole, 6.5 GB of memory, before its size was refused)."""
     name = os.fspath(path)
     try:
         size = os.path.getsize(name)
         with open(name, "rb") as fh:
-            blob = fh.read()
+            head = fh.read(HEADER_BYTES)
+            if size < HEADER_BYTES:
+                raise DataError(
+                    f"{name}: {size} bytes is too short for a MERL header (3 int32 = 12 bytes); "
+                    "the file is truncated or not a MERL binary")
+            dims = tuple(int(x) for x in np.frombuffer(head, dtype="<i4"))
+            if dims != MERL_DIMS:
+                raise DataError(
+                    f"{name}: MERL header dims {dims}, expected {MERL_DIMS} "
+                    "(n_theta_h, n_theta_d, n_phi_d); not a MERL BRDF binary")
+            if size != MERL_FILE_SIZE:
+                what = ("truncated" if size < MERL_FILE_SIZE
+                        else f"{size - MERL_FILE_SIZE:,} bytes too long")
+                raise DataError(
+                    f"{name}: wrong size {size:,} bytes, a 90x90x180 MERL file has "
+                    f"{MERL_FILE_SIZE:,} bytes (the file is {what})")
+            payload = np.empty(3 * N_BINS, dtype="<f8")
+            got = fh.readinto(memoryview(payload).cast("B"))
     except OSError as e:
         raise DataError(f"{name}: cannot read MERL file ({e.strerror or e})") from None
-    if size < HEADER_BYTES:
-        raise DataError(
-            f"{name}: {size} bytes is too short for a MERL header (3 int32 = 12 bytes); "
-            "the file is truncated or not a MERL binary"
-        )
-    dims = tuple(int(x) for x in np.frombuffer(blob[:HEADER_BYTES], dtype="<i4"))
-    if dims != MERL_DIMS:
-        raise DataError(
-            f"{name}: MERL header dims {dims}, expected {MERL_DIMS} "
-            "(n_theta_h, n_theta_d, n_phi_d); not a MERL BRDF binary"
-        )
-    if size != MERL_FILE_SIZE:
-        what = "truncated" if size < MERL_FILE_SIZE else "has trailing bytes"
-        raise DataError(
-            f"{name}: wrong size {size:,} bytes, a 90x90x180 MERL file has {MERL_FILE_SIZE:,} "
-            f"bytes (the file is {what})"
-        )
-    raw = np.frombuffer(blob, dtype="<f8", offset=HEADER_BYTES).astype(np.float64)
-    raw = raw.reshape(3, N_TH, N_TD, N_PD)
+    if got != payload.nbytes:  # the file shrank between the size check and the read
+        raise DataError(f"{name}: read {got:,} of {payload.nbytes:,} payload bytes (the file "
+                        "changed while it was read)")
+    raw = payload.astype(np.float64, copy=False).reshape(3, N_TH, N_TD, N_PD)
     if not np.isfinite(raw).all():
         c, i, j, k = (int(x[0]) for x in np.nonzero(~np.isfinite(raw)))
         raise DataError(

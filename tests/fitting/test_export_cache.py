@@ -163,6 +163,6 @@ def test_only_package_registry_models_are_cached():
 
     problem = FitProblem.of("ggx", n_channels=3)
     key = (problem.key, (), 3, "lm", 1e-10, 1e-10, 256)
-    assert single._export_key(problem, key) == repr(key)
+    assert _export.export_key(problem, key) == repr(key)
     built = FitProblem.of(registry.get("ggx").build(alpha=0.3, f0=[0.9, 0.6, 0.3]))
-    assert single._export_key(built, (built.key, (), 3, "lm", 1e-10, 1e-10, 256)) is None
+    assert _export.export_key(built, (built.key, (), 3, "lm", 1e-10, 1e-10, 256)) is None

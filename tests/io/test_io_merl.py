@@ -6,6 +6,7 @@ import math
 import jax
 import numpy as np
 import pytest
+from _helpers import PEAK_RSS_CODE, peak_kib
 
 from brdf_fit import registry
 from brdf_fit.data import DataError
@@ -211,7 +212,7 @@ def test_truncated_and_malformed_files(toy_file, tmp_path):
     blob = toy_file.read_bytes()
     cases = {
         "truncated.binary": (blob[:-8], r"wrong size 34,992,004 bytes.*the file is truncated"),
-        "trailing.binary": (blob + b"\0" * 8, r"has trailing bytes"),
+        "trailing.binary": (blob + b"\0" * 8, r"the file is 8 bytes too long"),
         "tiny.binary": (blob[:7], r"7 bytes is too short for a MERL header"),
         "dims.binary": (_header((90, 90, 360)) + blob[12:],
                         r"MERL header dims \(90, 90, 360\), expected \(90, 90, 180\)"),
@@ -233,6 +234,32 @@ def test_truncated_and_malformed_files(toy_file, tmp_path):
     with pytest.raises(DataError, match="cannot read MERL file"):
         read_merl(tmp_path / "missing.binary")
     assert not is_merl_file(tmp_path / "missing.binary")
+
+
+def test_huge_file_refused_before_its_payload_is_read(tmp_path):
+    """A sparse 6 GiB file with a valid header is refused from its size alone: the reading
+    process's peak memory stays that of its imports (it read the 6 GiB, 6.5 GB of memory,
+    before refusing it; issue 45)."""
+    import subprocess
+    import sys
+
+    p = tmp_path / "huge.binary"
+    with open(p, "wb") as fh:
+        fh.write(_header())
+        fh.truncate(6 * 2**30)
+    code = PEAK_RSS_CODE + (
+        "from brdf_fit.io.merl import read_merl\n"
+        "from brdf_fit.data import DataError\n"
+        "try:\n"
+        "    read_merl(_s.argv[1])\n"
+        "except DataError as e:\n"
+        "    print(e)\n"
+        "_peak()\n")
+    out = subprocess.run([sys.executable, "-c", code, str(p)], capture_output=True, text=True,
+                         check=True)
+    message = out.stdout.strip()
+    assert "wrong size 6,442,450,944 bytes" in message and "too long" in message, message
+    assert peak_kib(out.stderr) < 300 * 1024, out.stderr  # KiB; the imports take ~100 MB
 
 
 def test_writer_rejects_bad_model_values(tmp_path):
