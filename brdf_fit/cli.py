@@ -471,6 +471,12 @@ def _print_fit(result, data, path: str) -> None:
 
 def cmd_fit(args) -> int:
     _x64()
+    models = [m.strip() for m in args.model.split(",") if m.strip()]
+    if len(args.data) > 1 or len(models) > 1 or args.table is not None or args.shard:
+        return _fit_database(args, models)
+    if args.processes is not None:
+        raise CLIError("--processes shares a database run (several files or models, --table)")
+    args.data = args.data[0]
     from brdf_fit.fitting.single import fit
 
     reg = _registry()
@@ -523,6 +529,197 @@ def cmd_fit(args) -> int:
             print(f"wrote {args.export}")
     failed = [c for c in result.checks if not c.ok]
     return 0 if result.converged and not failed else 1
+
+#: data file extensions a folder given to `fit` is searched for
+_DATA_EXTS = (".binary", ".csv", ".npz")
+
+
+def _database_files(items, exclude=()) -> list[str]:
+    """The data files of ``fit``'s positional arguments: a folder stands for its data files
+    (:data:`_DATA_EXTS`, sorted) but the ``exclude`` files (the run's own table, which may be
+    written into the folder it reads); a file named twice is fitted once."""
+    skip = {os.path.abspath(x) for x in exclude}
+    out = []
+    for item in items:
+        if os.path.isdir(item):
+            found = sorted(os.path.join(item, n) for n in os.listdir(item)
+                           if n.lower().endswith(_DATA_EXTS)
+                           and os.path.abspath(os.path.join(item, n)) not in skip)
+            if not found:
+                raise CLIError(f"{item}: a folder with no data file ({', '.join(_DATA_EXTS)})")
+            out += found
+        else:
+            out.append(item)
+    return list(dict.fromkeys(out))
+
+
+def _parse_shard(text: str) -> tuple[int, int]:
+    try:
+        i, n = (int(x) for x in text.split("/"))
+    except ValueError:
+        raise CLIError(f"--shard must be I/N (e.g. 0/2), got {text!r}") from None
+    if not (n >= 1 and 0 <= i < n):
+        raise CLIError(f"--shard {text}: need 0 <= I < N")
+    return i, n
+
+
+def _fit_database(args, models) -> int:
+    """``brdf-fit fit FILES --model A,B --table OUT.csv``: every file fitted to every model
+    (:mod:`brdf_fit.fitting.database`), kept pair by pair, resumable, over several processes
+    with ``--processes N`` (or ``--shard I/N`` per machine on a shared folder)."""
+    import time
+
+    from brdf_fit.fitting import database
+
+    if args.table is None:
+        raise CLIError("several files or models: name the table to write with --table OUT.csv")
+    if not args.table.lower().endswith(".csv"):
+        raise CLIError(f"--table {args.table}: the table is a .csv file (its .json is written "
+                       "beside it)")
+    for flag, given in (("--export", args.export), ("--target", args.target),
+                        ("--check", args.check)):
+        if given:
+            raise CLIError(f"{flag} is for one fit; a database run writes a table")
+    if (args.fix or args.init) and len(models) > 1:
+        raise CLIError("--fix and --init name one model's parameters: give one --model with "
+                       "them")
+    check_output_file(args.table, (".csv",), "--table")
+    reg = _registry()
+    entries = [reg.get(m) for m in models]  # an unknown name fails before any file is read
+    files = _database_files(args.data, exclude=(args.table,))
+    fix = parse_params(args.fix, entries[0], "--fix") if args.fix else {}
+    init = parse_params(args.init, entries[0], "--init") if args.init else {}
+    options = {"metric": args.metric, "cos_weight": args.cos_weight,
+               "max_zenith_deg": args.max_zenith_deg, "multistart": args.multistart,
+               "seed": args.seed, "max_steps": args.max_steps, "guess": args.guess,
+               "time_limit": args.time_limit,
+               "fix": {k: np.asarray(v).tolist() for k, v in fix.items()},
+               "init": {k: np.asarray(v).tolist() for k, v in init.items()}}
+    if args.max_samples is not None:  # part of each pair's identity, not a fit() option
+        options["max_samples"] = args.max_samples
+    folder = args.table + database.PARTS_SUFFIX
+    names = [e.name for e in entries]
+    shard = _parse_shard(args.shard) if args.shard else None
+    if shard is not None and args.processes is not None:
+        raise CLIError("--processes starts its own shards: not with --shard")
+    before = None
+    if args.processes is not None and args.processes > 1:
+        before = database.count_finished(files, names, folder, options)
+        _database_processes(args)
+    max_samples = args.max_samples
+
+    def reader(path):
+        from brdf_fit import io
+
+        data = io.read(path)  # a DataError is that file's failure, reported in the table's run
+        if max_samples is not None and data.n > max_samples:
+            rng = np.random.default_rng(args.seed)
+            data = data.subset(np.sort(rng.choice(data.n, max_samples, replace=False)))
+        return data
+
+    fit_options = {**{k: v for k, v in options.items() if k != "max_samples"}, "fix": fix,
+                   "init": init}
+
+    def progress(done, total, text):
+        if not args.quiet:
+            print(f"[{done}/{total}] {text}", file=sys.stderr, flush=True)
+
+    t0 = time.perf_counter()
+    try:
+        run = database.fit_database(files, names, folder, fit_options=fit_options,
+                                    identity=options, shard=shard, progress=progress,
+                                    reader=reader)
+    except KeyboardInterrupt:
+        kept = database.count_finished(files, names, folder, options)
+        print(f"interrupted: {kept} finished pair(s) kept in {folder}; the same command "
+              "continues the run", file=sys.stderr)
+        return 130
+    if before is not None:  # the processes fitted what this run found done, but `before`
+        run.fitted_now += run.already_done - before
+        run.already_done = before
+    if shard is not None:  # one share of a run: the table is assembled by a run without it
+        if not args.quiet:
+            print(f"shard {args.shard}: {run.fitted_now} fitted now, {run.already_done} done "
+                  f"before, {run.failed} failed", file=sys.stderr)
+        return 0 if not run.failed else 1
+    meta = {"files": files, "models": names, "options": options,
+            "pairs": run.total, "finished": len(run.rows), "failures": run.failures}
+    written = database.write_table(args.table, run.rows, meta)
+    figure = os.path.splitext(args.table)[0] + ".png"
+    try:
+        from brdf_fit.plot import database_errors
+
+        if run.rows:
+            database_errors(run.rows).savefig(figure, dpi=110)
+            written.append(figure)
+    except ImportError:
+        pass  # matplotlib is an extra: the table stands without its figure
+    seconds = time.perf_counter() - t0
+    not_conv = [f"{r['material']} {r['model']}" for r in run.rows if not r["converged"]]
+    if args.json:
+        print(json.dumps({**meta, "fitted_now": run.fitted_now,
+                          "already_done": run.already_done, "failed": run.failed,
+                          "not_converged": not_conv, "written": written,
+                          "seconds": round(seconds, 3), "rows": run.rows}, indent=1))
+    else:
+        _print_database(run, names)
+        print(f"{run.fitted_now} fitted now + {run.already_done} done before + {run.failed} "
+              f"failed = {run.total} pairs ({len(files)} files x {len(names)} models) in "
+              f"{seconds:.1f} s; wrote {', '.join(written)}")
+        for f in run.failures:
+            print(f"  failed: {f}")
+        if not_conv:
+            print(f"  not converged: {', '.join(not_conv)}")
+    return 0 if not run.failed and not not_conv else 1
+
+
+def _print_database(run, models) -> None:
+    """The relative RMS radiance error per material (rows) and model (columns)."""
+    by = {(r["material"], r["model"]): r for r in run.rows}
+    materials = list(dict.fromkeys(r["material"] for r in run.rows))
+    width = max([8, *(len(m) for m in materials)])
+    print(f"{'rel. RMS':<{width}} " + " ".join(f"{m:>14}" for m in models))
+    for mat in materials:
+        cells = []
+        for m in models:
+            r = by.get((mat, m))
+            cells.append("-" if r is None else
+                         f"{r['errors']['rel_rms']:.4g}{'' if r['converged'] else '*'}")
+        print(f"{mat:<{width}} " + " ".join(f"{c:>14}" for c in cells))
+    if any(not r["converged"] for r in run.rows):
+        print("(* not converged)")
+
+
+def _database_processes(args) -> None:
+    """``--processes N``: N local processes, each fitting every N-th pair (``--shard I/N``);
+    returns when all have ended (the caller then assembles the table, fitting whatever a
+    process could not finish). Ctrl-C stops them all."""
+    import subprocess
+
+    argv, skip = [], False
+    for a in sys.argv[1:] if getattr(args, "_argv", None) is None else args._argv:
+        if skip:
+            skip = False
+            continue
+        if a == "--processes":
+            skip = True
+            continue
+        if a.startswith("--processes=") or a in ("--json", "--quiet"):
+            continue
+        argv.append(a)
+    n = args.processes
+    procs = [subprocess.Popen([sys.executable, "-m", "brdf_fit.cli", *argv, "--shard",
+                               f"{i}/{n}", *(["--quiet"] if args.quiet else [])],
+                              stdout=subprocess.DEVNULL) for i in range(n)]
+    try:
+        for p in procs:
+            p.wait()
+    except KeyboardInterrupt:
+        for p in procs:
+            p.terminate()
+        for p in procs:
+            p.wait()
+        raise
 
 
 #: export targets by output extension
@@ -1833,10 +2030,10 @@ def cmd_lut(args) -> int:
     return 0
 
 
-def _fit_options(p, what: str) -> None:
+def _fit_options(p, what: str, models: str = "registry name (see 'brdf-fit models')") -> None:
     """The options ``fit`` and ``fit-batch`` share (``what``: what the zenith cut does to a
-    sample, "drop" or "mask")."""
-    p.add_argument("--model", required=True, help="registry name (see 'brdf-fit models')")
+    sample, "drop" or "mask"; ``models``: the help of ``--model``)."""
+    p.add_argument("--model", required=True, help=models)
     p.add_argument("--fix", action="append", metavar="NAME=VALUE",
                    help="hold a parameter at a value (comma-separated for channels); repeatable")
     p.add_argument("--init", action="append", metavar="NAME=VALUE",
@@ -1912,9 +2109,13 @@ def build_parser() -> argparse.ArgumentParser:
     y.add_argument("--json", action="store_true", help="machine-readable summary")
     y.set_defaults(func=cmd_synth)
 
-    f = sub.add_parser("fit", help="fit a registry model to measured data")
-    f.add_argument("data", help="data file: .csv, .npz (or its .json sidecar), MERL .binary")
-    _fit_options(f, what="drop")
+    f = sub.add_parser("fit", help="fit a registry model to measured data (or many files to "
+                                   "several models: --table)")
+    f.add_argument("data", nargs="+",
+                   help="data file: .csv, .npz (or its .json sidecar), MERL .binary; with "
+                        "--table any number of files and folders (a database run)")
+    _fit_options(f, what="drop", models="registry name (see 'brdf-fit models'); with --table "
+                                        "a comma-separated list")
     f.add_argument("--solver", default="lm",
                    help="lm (default), levenberg-marquardt, gauss-newton, gauss-newton-plain, "
                         "dogleg")
@@ -1935,7 +2136,19 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--export", default=None, metavar="OUT",
                    help="write the fitted model for a renderer: .xml (Mitsuba 3 scene with one "
                         "bsdf) or .gltf (glTF 2.0 material), checked by round trip on the data")
-    f.add_argument("--json", action="store_true", help="print FitResult.to_dict()")
+    db = f.add_argument_group("a database run (many files x models, one table)")
+    db.add_argument("--table", default=None, metavar="OUT.csv",
+                    help="fit every file to every --model and write the table (CSV, and JSON "
+                         "beside it: parameters, standard errors, rel. RMS and the published "
+                         "error measures, time) and its figure (.png); each finished pair is "
+                         "kept in OUT.csv.parts/, so the same command resumes a stopped run")
+    db.add_argument("--processes", type=_positive_int, default=None, metavar="N",
+                    help="share the pairs among N local processes")
+    db.add_argument("--shard", default=None, metavar="I/N",
+                    help="fit only pairs I, I+N, ... (one machine of several on a shared "
+                         "folder; a run without --shard then writes the table)")
+    f.add_argument("--json", action="store_true", help="print FitResult.to_dict() (a database "
+                                                       "run: the table's JSON)")
     f.add_argument("--quiet", action="store_true", help="no status line on stderr")
     f.set_defaults(func=cmd_fit)
 

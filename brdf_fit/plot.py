@@ -18,8 +18,8 @@ import numpy as np
 
 from brdf_fit.data import GonioData
 
-__all__ = ["hemisphere", "in_plane_samples", "in_plane_slices", "model_lobes", "residuals",
-           "selection_front", "table_maps"]
+__all__ = ["database_errors", "hemisphere", "in_plane_samples", "in_plane_slices",
+           "model_lobes", "residuals", "selection_front", "table_maps"]
 
 #: Tolerance on angles (degrees) when picking the in-plane samples out of a scattered dataset.
 ANGLE_TOL_DEG = 0.5
@@ -370,4 +370,49 @@ def scene_front(result, title: str | None = None):
     head = (f"model set: {', '.join(result.model_set)} ({result.cost_ns_total:.3g} ns in all, "
             f"worst error {result.worst_error:.3g})")
     ax.set_title(head if not title else f"{title}\n{head}", fontsize=9)
+    return fig
+
+
+def database_errors(rows: Sequence[dict], measure: str = "rel_rms", title: str | None = None):
+    """A database run's errors (:func:`brdf_fit.fitting.database.fit_database` rows): one line
+    per model over the materials, the materials ordered by the error of the best model for each
+    (as Ngan et al., EGSR 2005, plot theirs), the error on a log scale; a fit that did not
+    converge is drawn as an open marker."""
+    models = list(dict.fromkeys(r["model"] for r in rows))
+    materials = list(dict.fromkeys(r["material"] for r in rows))
+    err = {(r["material"], r["model"]): r for r in rows}
+
+    def best(m):
+        vals = [err[(m, k)]["errors"][measure] for k in models if (m, k) in err]
+        vals = [v for v in vals if v is not None and math.isfinite(v)]
+        return min(vals) if vals else math.inf
+
+    order = sorted(materials, key=best)
+    fig = _figure(max(6.0, 0.28 * len(order) + 2.5), 4.2)
+    ax = fig.add_subplot()
+    x = np.arange(len(order))
+    for k in models:
+        xs, ys, conv = [], [], []
+        for i, m in enumerate(order):
+            r = err.get((m, k))
+            v = None if r is None else r["errors"][measure]
+            if v is not None and math.isfinite(v) and v > 0:
+                xs.append(i)
+                ys.append(v)
+                conv.append(bool(r["converged"]))
+        line, = ax.plot(xs, ys, "-", lw=1, label=k)
+        c = line.get_color()
+        ax.plot([a for a, ok in zip(xs, conv, strict=True) if ok],
+                [b for b, ok in zip(ys, conv, strict=True) if ok], "o", ms=4, color=c)
+        ax.plot([a for a, ok in zip(xs, conv, strict=True) if not ok],
+                [b for b, ok in zip(ys, conv, strict=True) if not ok], "o", ms=5, mfc="none",
+                color=c)
+    ax.set_yscale("log")
+    ax.set_xticks(x, order, rotation=60, ha="right", fontsize=7)
+    ax.set_ylabel(measure)
+    ax.set_xlabel("material (ordered by its best model's error)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7)
+    ax.set_title(title or f"{len(order)} materials x {len(models)} models: {measure} "
+                 "(open marker: not converged)", fontsize=9)
     return fig

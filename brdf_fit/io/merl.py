@@ -42,6 +42,7 @@ __all__ = [
     "MERL_SCALES",
     "is_merl_file",
     "merl_bin_centres",
+    "half_diff_angles",
     "merl_indices",
     "merl_lookup",
     "read_merl",
@@ -83,6 +84,13 @@ def _half_diff(wi, wo):
     theta_d = np.arccos(np.clip(d[:, 2], -1.0, 1.0))
     phi_d = np.arctan2(d[:, 1], d[:, 0])
     return theta_h, theta_d, phi_d
+
+
+def half_diff_angles(wi, wo) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(theta_h, theta_d, phi_d)`` of ``(N, 3)`` direction pairs (radians), as the MERL
+    reference code's ``std_coords_to_half_diff_coords`` computes them."""
+    return _half_diff(np.atleast_2d(np.asarray(wi, np.float64)),
+                      np.atleast_2d(np.asarray(wo, np.float64)))
 
 
 def merl_indices(wi, wo) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
