@@ -137,6 +137,31 @@ class _Programs:
 
 
 _PROGRAMS: dict = {}
+_STATE_FIELDS = tuple(f.name for f in dataclasses.fields(_lm.LMState))
+
+
+def _fields(s: _lm.LMState) -> tuple:
+    """An :class:`~brdf_fit.fitting._lm.LMState` as the tuple of its fields: what the kept
+    programs take and return (jax.export serialises tuples, not the equinox class)."""
+    return tuple(getattr(s, n) for n in _STATE_FIELDS)
+
+
+def _state(t) -> _lm.LMState:
+    return _lm.LMState(**dict(zip(_STATE_FIELDS, t, strict=True)))
+
+
+def _gauss_newton_done(s: _lm.LMState):
+    """:func:`brdf_fit.fitting._lm.newton_converged` at the state's iterate and tolerances."""
+    return _lm.newton_converged(s.u, s.cost, s.A, s.g, s.tol[0], s.tol[1])
+
+
+def _on_state(fn, returns_state: bool = False):
+    """``fn`` (a program on the state's fields) called with a state (and returning one)."""
+    def call(s, *rest):
+        out = fn(_fields(s), *rest)
+        return _state(out) if returns_state else out
+    return call
+
 
 
 def _programs(problem: FitProblem, n_channels: int, sandwich: bool) -> _Programs:
@@ -160,10 +185,10 @@ def _programs(problem: FitProblem, n_channels: int, sandwich: bool) -> _Programs
     got = _Programs(
         sums=kept(lambda u, prep, lo, hi, fx: _sums(P(fx), dq, u, prep, lo, hi, fx, sandwich),
                   "sums"),
-        propose=kept(_lm.lm_propose, "propose"),
-        update=kept(_lm.lm_update, "update"),
-        converged=kept(lambda s: _lm.newton_converged(s.u, s.cost, s.A, s.g, s.tol[0],
-                                                      s.tol[1]), "converged"),
+        propose=_on_state(kept(lambda t: _lm.lm_propose(_state(t)), "propose")),
+        update=_on_state(kept(lambda t, *rest: _fields(_lm.lm_update(_state(t), *rest)),
+                              "update"), returns_state=True),
+        converged=_on_state(kept(lambda t: _gauss_newton_done(_state(t)), "converged")),
         finish=kept(lambda u, cost, A, meat, m_eff, n_res, fx: _lm.finalise_state(
             P(fx), u, cost, A, meat, m_eff, n_res, fx, sandwich), "finish"),
     )
@@ -227,8 +252,10 @@ def solve_chunked(problem: FitProblem, u0, data: ChunkedData, n_channels: int,
     dtype = np.asarray(u0).dtype
     deadline = None if time_limit is None else time.perf_counter() + float(time_limit)
     prep = data.prep
-    start = jax.tree.map(lambda x: x[0], _lm.LMState.start(np.asarray(u0)[None], dtype,
-                                                          max_steps, rtol, atol))
+    # device arrays from the start (NumPy scalars would give the first step's programs another
+    # signature than the later steps', so two programs each)
+    start = jax.tree.map(lambda x: jnp.asarray(x[0]), _lm.LMState.start(
+        np.asarray(u0)[None], dtype, max_steps, rtol, atol))
 
     def begin(u, rows, steps_so_far):
         """A fresh state at ``u`` (damping reset) with its sums on the chunks ``rows``."""
