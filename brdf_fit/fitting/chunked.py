@@ -40,7 +40,7 @@ import numpy as np
 
 from brdf_fit.fitting import _lm
 from brdf_fit.fitting._export import ExportedCall, export_key
-from brdf_fit.fitting.problem import FitProblem
+from brdf_fit.fitting.problem import FitProblem, at_bound
 from brdf_fit.fitting.solvers import bucket
 
 __all__ = ["CHUNK", "CHUNKED_FROM", "COARSE_CHUNKS", "ChunkedData", "ChunkedSolution",
@@ -201,7 +201,8 @@ class ChunkedSolution:
     """What :func:`solve_chunked` ends with: the unconstrained iterate ``u``, whether it
     converged, the steps of each stage (``coarse_steps``, ``steps`` in all), the loss and the
     normal equations at ``u`` on the whole data, and why it stopped where it did not converge
-    (``stopped``: "", "max_steps", "time_limit")."""
+    (``stopped``: "", "max_steps", "time_limit", "stalled": the loss no longer decreasing and
+    not at a constrained optimum, :func:`converged_at_bounds`)."""
 
     u: np.ndarray
     converged: bool
@@ -225,7 +226,7 @@ def _run_stage(progs, state, prep, rows, fx, budget, deadline, progress, stage):
     steps = 0
     while steps < budget:
         if bool(state.done):
-            return state, steps, ""
+            return state, steps, "" if bool(state.ok) else "stalled"
         if deadline is not None and time.perf_counter() > deadline:
             return state, steps, "time_limit"
         du, u_new, lam, scale = progs.propose(state)
@@ -234,7 +235,7 @@ def _run_stage(progs, state, prep, rows, fx, budget, deadline, progress, stage):
         steps += 1
         if progress is not None:
             progress(stage, steps, float(state.cost))
-    return state, steps, "" if bool(state.done) else "max_steps"
+    return state, steps, "stalled" if bool(state.done) else "max_steps"
 
 
 def solve_chunked(problem: FitProblem, u0, data: ChunkedData, n_channels: int,
@@ -277,11 +278,41 @@ def solve_chunked(problem: FitProblem, u0, data: ChunkedData, n_channels: int,
     if why != "time_limit":
         state, steps, why = _run_stage(progs, state, prep, rows, fx, max_steps - coarse_steps,
                                        deadline, progress, "full")
+    ok = bool(state.ok)
+    if not ok and why == "stalled" and converged_at_bounds(problem, state):
+        ok, why = True, ""
     # the carried sums are those of the last accepted iterate (the meat too, with sandwich)
-    return ChunkedSolution(u=np.asarray(state.u), converged=bool(state.ok),
+    return ChunkedSolution(u=np.asarray(state.u), converged=ok,
                            steps=coarse_steps + steps, coarse_steps=coarse_steps,
                            cost=float(state.cost), A=np.asarray(state.A),
-                           meat=np.asarray(state.meat), stopped="" if bool(state.ok) else why)
+                           meat=np.asarray(state.meat), stopped="" if ok else why)
+
+
+def converged_at_bounds(problem: FitProblem, state) -> bool:
+    """Whether a solve that stopped without converging (batch-lm's stall: accepted steps that no
+    longer change the loss while the iterate moves) is at a constrained optimum: the entries
+    sitting at an end of their interval (:func:`brdf_fit.fitting.problem.at_bound`) held
+    there, the undamped Gauss-Newton step of the others passes the convergence test
+    (:func:`brdf_fit.fitting._lm.newton_converged` on the normal equations without the
+    bound entries). A parameter pushed onto its bound slides along the plateau of its
+    logistic transform, where batch-lm's stall rule stops it; the dense solver reports the
+    same point converged, with the parameter at bound (a lambert fit of a metal: rho at 1 in
+    every channel; a GGX fit of gold: f0 at 1 in red)."""
+    phys = problem.unflatten(jnp.asarray(state.u))
+    lay = problem.layout
+    bound = lay.join({n: at_bound(tr, np.asarray(phys[n]))
+                      for n, tr in zip(lay.names, lay.transforms, strict=True)}, xp=np)
+    bound = np.asarray(bound, bool)
+    if not bound.any():
+        return False
+    free = ~bound
+    if not free.any():
+        return True
+    u, A, g = (np.asarray(x) for x in (state.u, state.A, state.g))
+    rtol, atol = (float(x) for x in np.asarray(state.tol))
+    return bool(_lm.newton_converged(jnp.asarray(u[free]), jnp.asarray(state.cost),
+                                     jnp.asarray(A[np.ix_(free, free)]),
+                                     jnp.asarray(g[free]), rtol, atol))
 
 
 def finish_chunked(problem: FitProblem, sol: ChunkedSolution, n_channels: int, m_eff: int,

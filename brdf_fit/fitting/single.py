@@ -451,6 +451,8 @@ def fit(
         se = np.where(codes == 0, se, np.nan)
         stderr = layout.split(se)
     converged = bool(ok) and not (codes == 3).any()
+    bound_names = tuple(n for n, tr in zip(free, layout.transforms, strict=True)
+                        if at_bound(tr, params[n]).any())
     notes = {k: v for k, v in layout.split(stderr_notes(codes)).items() if (v != "").any()}
     try:
         fitted = source.build({k: jnp.asarray(v) for k, v in params.items()})
@@ -481,11 +483,15 @@ def fit(
             "non-finite residuals or Jacobian at the optimum: standard errors undefined"
             if (codes == 3).any() else
             (f"stopped at the time limit ({time_limit:g} s) before converging"
-             if stopped == "time_limit" else f"did not converge in {max_steps} steps")
+             if stopped == "time_limit" else
+             f"stopped after {int(steps)} steps without converging: the loss no longer "
+             "decreases while parameters still move"
+             + (f" ({', '.join(bound_names)} at an end of its interval)" if bound_names else "")
+             if stopped == "stalled" else
+             f"did not converge in {max_steps} steps")
             + NOT_CONVERGED_ADVICE),
         stderr_note=notes,
-        at_bound=tuple(n for n, tr in zip(free, layout.transforms, strict=True)
-                       if at_bound(tr, params[n]).any()),
+        at_bound=bound_names,
         undetermined=tuple(
             lab for n, se in stderr.items()
             for lab, bad in zip(entry_labels(n, np.shape(params[n]), tuple(data.channels)),

@@ -138,3 +138,25 @@ def test_whole_merl_file_in_bounded_memory(tmp_path):
     assert doc["converged"] and doc["n_samples"] == 1096216
     assert abs(doc["params"]["alpha"] - 0.12) < 1e-6
     assert peak_kib(out.stderr) < 1024 * 1024, out.stderr[-500:]  # KiB
+
+
+def test_parameters_on_their_bounds(small_chunks):
+    """Data 20 times too bright for the models: a lambert fit runs every rho onto its upper
+    bound, a constrained optimum reported converged and at bound (converged_at_bounds); a GGX
+    fit runs f0 onto its bound: converged at bound where alpha settles, else not converged
+    with a message that says which parameter sits at its bound (measured: from the default
+    start alpha still creeps at the stall; the dense solver ends both at max_steps)."""
+    import dataclasses
+
+    d = _data(0.02, False)
+    d = dataclasses.replace(d, value=d.value * 20)
+    r = fit(d, "lambert")
+    assert r.converged and r.at_bound == ("rho",)
+    np.testing.assert_allclose(r.params["rho"], 1.0, rtol=1e-6)
+    assert np.all(np.isnan(r.stderr["rho"]))
+    for init in ({}, START):  # one start stalls while alpha creeps, the other settles
+        r = fit(d, "ggx", init=init)
+        assert "f0" in r.at_bound
+        np.testing.assert_allclose(r.params["f0"], 1.0, rtol=1e-4)
+        assert r.converged or ("without converging" in r.message
+                               and "f0 at an end of its interval" in r.message), r.message
