@@ -70,6 +70,18 @@ def _positive_float(text: str) -> float:
     return v
 
 
+def _size(text: str) -> str:
+    """A memory size as ``--max-memory`` takes it (checked here, kept as text for the
+    environment)."""
+    import re
+
+    if not re.fullmatch(r"\s*[0-9]*\.?[0-9]+\s*[KMGTkmgt]?(?:[iI]?[bB])?\s*", text) or not any(
+            c.isdigit() and c != "0" for c in text):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a size (e.g. 8G, 500M or a number "
+                                         "of bytes)")
+    return text.strip()
+
+
 #: seconds after which `brdf-fit fit` stops a large (chunked) fit that has not converged
 FIT_TIME_LIMIT = 60.0
 
@@ -2059,6 +2071,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="do not keep compiled programs between runs (default: kept in "
                         "$BRDF_FIT_CACHE_DIR or ~/.cache/brdf_fit/jax; BRDF_FIT_NO_CACHE=1 "
                         "also turns it off)")
+    p.add_argument("--max-memory", type=_size, default=None, metavar="SIZE",
+                   help="the most memory an input may make a command allocate, checked before "
+                        "it is (e.g. 8G, 500M; default: half the machine's memory, or "
+                        "$BRDF_FIT_MAX_MEMORY)")
     sub = p.add_subparsers(dest="command", required=True)
 
     m = sub.add_parser("models", help="list the registered models and their parameters")
@@ -2327,6 +2343,7 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     never imported cannot have been raised."""
     errors: list[type[BaseException]] = [CLIError]
     for module, names in (("brdf_fit.core.validate", ("ParameterError",)),
+                          ("brdf_fit.core.limits", ("LimitError",)),
                           ("brdf_fit.fitting.problem", ("FitError",)),
                           ("brdf_fit.data", ("DataError",)),
                           ("data_synth.recipes", ("RecipeError",)),
@@ -2397,6 +2414,8 @@ def main(argv: list[str] | None = None) -> int:
 
     args = build_parser().parse_args(argv)
     args._argv = None if argv is None else list(argv)
+    if args.max_memory is not None:  # read by brdf_fit.core.limits; children inherit it
+        os.environ["BRDF_FIT_MAX_MEMORY"] = str(args.max_memory)
     _enable_compilation_cache(not args.no_cache)
     shown = warnings.showwarning
     warnings.showwarning = _show_warning

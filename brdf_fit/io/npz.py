@@ -27,6 +27,7 @@ import zipfile
 import numpy as np
 
 from brdf_fit._version import __version__
+from brdf_fit.core.limits import LimitError, check_bytes
 from brdf_fit.data import DataError, GonioData
 
 __all__ = ["SCHEMA", "SCHEMA_VERSION", "write_npz", "read_npz", "sidecar_path"]
@@ -104,6 +105,56 @@ def write_npz(data: GonioData, path, provenance: dict | None = None) -> tuple[st
     return str(npz), str(side)
 
 
+#: bytes a member's stored size may exceed its array's (the .npy header: 64-byte aligned, at
+#: most a few hundred bytes for these arrays; numpy.lib.format)
+_HEADER_SLACK = 4096
+
+
+def _check_members(npz: pathlib.Path, expect: dict) -> None:
+    """Refuse a ``.npz`` whose members are not this format's arrays, before decompressing any:
+    every member named in ``expect`` (an unknown one is reported by name: a 4 GiB member of
+    zeros went through unread, and decompressed, before), its ``.npy`` header read from the
+    first bytes of its stream (a float array of the sidecar's shape, no objects), its stored
+    size within the header's plus :data:`_HEADER_SLACK` (the decompressed size is then
+    bounded), and the arrays' total against the memory limit (:mod:`brdf_fit.core.limits`)."""
+    try:
+        zf = zipfile.ZipFile(npz)
+    except (OSError, zipfile.BadZipFile, ValueError) as e:
+        raise DataError(f"{npz}: not a readable .npz file (not a zip archive: {e})") from None
+    total = 0
+    with zf:
+        infos = zf.infolist()
+        names = [i.filename[:-4] if i.filename.endswith(".npy") else i.filename for i in infos]
+        unknown = sorted(set(names) - set(expect))
+        if unknown:
+            raise DataError(f"{npz}: unknown member(s) {unknown}; a {SCHEMA} .npz holds only "
+                            f"{', '.join(expect)}")
+        for info, name in zip(infos, names, strict=True):
+            try:
+                with zf.open(info) as fh:
+                    major, _ = np.lib.format.read_magic(fh)
+                    read = (np.lib.format.read_array_header_1_0 if major == 1
+                            else np.lib.format.read_array_header_2_0)
+                    shape, _, dtype = read(fh)
+            except (OSError, ValueError, zipfile.BadZipFile, EOFError) as e:
+                raise DataError(f"{npz}: member {name!r} is not a .npy array ({e})") from None
+            if dtype.hasobject or dtype.kind != "f":
+                raise DataError(f"{npz}: array {name!r} has dtype {dtype}, expected float")
+            if tuple(shape) != expect[name]:
+                raise DataError(f"{npz}: array {name!r} has shape {tuple(shape)}, the sidecar "
+                                f"says {expect[name]}")
+            nbytes = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+            if info.file_size > nbytes + _HEADER_SLACK:
+                raise DataError(f"{npz}: member {name!r} stores {info.file_size:,} bytes for a "
+                                f"{nbytes:,}-byte array; the file is damaged or not this "
+                                "format")
+            total += nbytes
+    try:
+        check_bytes(total, f"{npz}: its arrays")
+    except LimitError as e:
+        raise DataError(str(e)) from None
+
+
 def read_npz(path, validate: bool = True) -> GonioData:
     """Read a dataset written by :func:`write_npz` (``path``: the ``.npz`` or the ``.json``).
     The returned metadata is the stored metadata plus ``provenance``, ``schema_version``,
@@ -136,6 +187,16 @@ def read_npz(path, validate: bool = True) -> GonioData:
         raise DataError(f"{npz}: SHA-256 {digest[:12]}... does not match the sidecar "
                         f"({str(doc['npz_sha256'])[:12]}...); the files do not belong together "
                         "or one was modified")
+    n, channels = doc["n"], doc["channels"]
+    if not isinstance(n, int) or isinstance(n, bool) or n < 0:
+        raise DataError(f"{side}: n must be a non-negative integer, got {n!r}")
+    if not isinstance(channels, list) or not channels or not all(
+            isinstance(c, str) for c in channels):
+        raise DataError(f"{side}: channels must be a non-empty list of names, got {channels!r}")
+    channels = tuple(channels)
+    expect = {"wi": (n, 3), "wo": (n, 3), "value": (n, len(channels)),
+              "weight": (n, len(channels)), "sigma": (n, len(channels))}
+    _check_members(npz, expect)  # names, dtypes, shapes and sizes, before any is decompressed
     try:
         with np.load(npz, allow_pickle=False) as z:
             arrays = {k: np.asarray(z[k]) for k in z.files}
@@ -144,15 +205,15 @@ def read_npz(path, validate: bool = True) -> GonioData:
     missing = [k for k in _REQUIRED if k not in arrays]
     if missing:
         raise DataError(f"{npz}: missing array(s) {missing}; found {sorted(arrays)}")
-    n, channels = doc["n"], tuple(doc["channels"])
-    expect = {"wi": (n, 3), "wo": (n, 3), "value": (n, len(channels)),
-              "weight": (n, len(channels)), "sigma": (n, len(channels))}
     for k, a in arrays.items():
         if k in expect and a.shape != expect[k]:
             raise DataError(f"{npz}: array {k!r} has shape {a.shape}, the sidecar says "
                             f"{expect[k]} (n = {n}, channels = {list(channels)})")
         if k in expect and a.dtype.kind != "f":
             raise DataError(f"{npz}: array {k!r} has dtype {a.dtype}, expected float")
+    if not isinstance(doc.get("metadata") or {}, dict):
+        raise DataError(f"{side}: metadata must be a JSON object, got "
+                        f"{type(doc['metadata']).__name__}")
     metadata = dict(doc.get("metadata") or {})
     metadata.update({"provenance": doc.get("provenance", {}), "schema_version": version,
                      "source": str(npz), "format": "npz"})

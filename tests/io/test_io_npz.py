@@ -98,3 +98,119 @@ def test_errors_name_file_and_problem(tmp_path):
     assert read_npz(tmp_path / "neg.npz", validate=False).n == 25
     with pytest.raises(DataError, match="must be JSON serialisable"):
         write_npz(d.with_metadata(obj=object()), tmp_path / "o.npz")
+
+
+def _with_member(path, name, array=None, raw=None):
+    """Rewrite the .npz at ``path`` with one more member (an array, or raw bytes) and the
+    sidecar's checksum refreshed, as a hostile or damaged file would come."""
+    import hashlib
+    import zipfile
+
+    with zipfile.ZipFile(path, "a", compression=zipfile.ZIP_DEFLATED) as z:
+        if array is not None:
+            import io
+
+            buf = io.BytesIO()
+            np.save(buf, array, allow_pickle=True)
+            z.writestr(name, buf.getvalue())
+        else:
+            z.writestr(name, raw)
+    side = sidecar_path(path)
+    doc = json.loads(side.read_text())
+    doc["npz_sha256"] = hashlib.sha256(path.read_bytes()).hexdigest()
+    side.write_text(json.dumps(doc))
+
+
+def test_hostile_members_are_refused_before_decompression(tmp_path, monkeypatch):
+    """A zip bomb (a member of 4 GiB of zeros in a few MB), an unknown member, an object array,
+    a member larger than its header, a sidecar implying more than the memory limit, a bad
+    channels or metadata field: one line each naming the problem, in a child whose peak memory
+    stays that of its imports (issue 45: the bomb went through, decompressed, at 4.4 GB)."""
+    import subprocess
+    import sys
+    import zipfile
+
+    from _helpers import PEAK_RSS_CODE, peak_kib
+
+    d = _data()
+    bomb = tmp_path / "bomb.npz"
+    write_npz(d, bomb)
+    with zipfile.ZipFile(bomb, "a", compression=zipfile.ZIP_DEFLATED) as z:
+        with z.open("extra.npy", "w", force_zip64=True) as fh:
+            block = b"\0" * 2**24
+            for _ in range(256):  # 4 GiB of zeros, ~4 MB stored
+                fh.write(block)
+    _with_member(bomb, "x.txt", raw=b"")  # refresh the checksum (and one more unknown member)
+    assert bomb.stat().st_size < 10 * 2**20
+    code = PEAK_RSS_CODE + ("from brdf_fit.io.npz import read_npz\n"
+                            "from brdf_fit.data import DataError\n"
+                            "try:\n"
+                            "    read_npz(_s.argv[1])\n"
+                            "except DataError as e:\n"
+                            "    print(e)\n"
+                            "_peak()\n")
+    out = subprocess.run([sys.executable, "-c", code, str(bomb)], capture_output=True,
+                         text=True, check=True)
+    assert "unknown member(s) ['extra', 'x.txt']" in out.stdout, out.stdout
+    assert peak_kib(out.stderr) < 300 * 1024, out.stderr
+
+    cases = {
+        "obj.npz": ("value", np.array([object()] * 75).reshape(25, 3), "dtype object"),
+    }
+    for fname, (member, arr, words) in cases.items():
+        p = tmp_path / fname
+        write_npz(d, p)
+        # replace the member: rebuild the zip without it, then add the hostile one
+        with zipfile.ZipFile(p) as z:
+            keep = {i.filename: z.read(i) for i in z.infolist() if i.filename != member + ".npy"}
+        with zipfile.ZipFile(p, "w") as z:
+            for k, v in keep.items():
+                z.writestr(k, v)
+        _with_member(p, member + ".npy", array=arr)
+        with pytest.raises(DataError, match=words):
+            read_npz(p)
+    # a member that stores more than its header says
+    p = tmp_path / "long.npz"
+    write_npz(d, p)
+    with zipfile.ZipFile(p) as z:
+        keep = {i.filename: z.read(i) for i in z.infolist()}
+    keep["wi.npy"] = keep["wi.npy"] + b"\0" * 10**5
+    with zipfile.ZipFile(p, "w") as z:
+        for k, v in keep.items():
+            z.writestr(k, v)
+    _with_member(p, "pad.npy", raw=b"")
+    with pytest.raises(DataError, match="unknown member"):
+        read_npz(p)
+    with zipfile.ZipFile(p, "w") as z:
+        for k, v in keep.items():
+            z.writestr(k, v)
+    side = sidecar_path(p)
+    doc = json.loads(side.read_text())
+    import hashlib
+
+    doc["npz_sha256"] = hashlib.sha256(p.read_bytes()).hexdigest()
+    side.write_text(json.dumps(doc))
+    with pytest.raises(DataError, match=r"member 'wi' stores 100,\d+ bytes for a 600-byte"):
+        read_npz(p)
+    # sidecar fields: a size past the limit, bad channels, bad metadata
+    p = tmp_path / "s.npz"
+    write_npz(d, p)
+    side = sidecar_path(p)
+    doc = json.loads(side.read_text())
+    for change, words in (({"n": 10**12, "npz_sha256": None}, r"has shape \(25, 3\), the "
+                                                               r"sidecar says \(1000000000000"),
+                          ({"channels": 5}, "channels must be a non-empty list"),
+                          ({"metadata": [1, 2]}, "metadata must be a JSON object")):
+        side.write_text(json.dumps({**doc, **change}))
+        with pytest.raises(DataError, match=words):
+            read_npz(p)
+    side.write_text(json.dumps(doc))
+    monkeypatch.setenv("BRDF_FIT_MAX_MEMORY", "1K")  # the arrays: 25 x (3 + 3 + 3 x 3) x 8 B
+    with pytest.raises(DataError, match=r"s.npz: its arrays would take 3 kB, over the memory limit "
+                                        r"of 1.02 kB \(raise it with --max-memory"):
+        read_npz(p)
+    # not a zip at all
+    (tmp_path / "junk.npz").write_bytes(b"\x93NUMPY not a zip")
+    (tmp_path / "junk.json").write_text(json.dumps({**doc, "npz_sha256": None}))
+    with pytest.raises(DataError, match="not a zip archive"):
+        read_npz(tmp_path / "junk.npz")
