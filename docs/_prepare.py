@@ -30,6 +30,9 @@ def copy_report(dest: pathlib.Path) -> None:
     (dest / "index.md").write_text(text, encoding="utf-8")
     for png in sorted((src / "report").glob("*.png")):
         shutil.copyfile(png, dest / png.name)
+    # figures of the other benchmarks that the benchmarks page shows (database.png)
+    for png in sorted(src.glob("*.png")):
+        shutil.copyfile(png, dest / png.name)
 
 
 if __name__ == "__main__":
