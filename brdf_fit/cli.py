@@ -1877,6 +1877,10 @@ def _select_scene(args, names, checks) -> int:
 LUT_TABLES = ("dfg", "albedo", "eavg")
 
 
+#: memory a node of an albedo table takes at its peak (see _lut_albedo)
+LUT_BYTES_PER_NODE = 128
+
+
 def _lut_albedo(args) -> int:
     """``lut albedo MODEL --axis mu=64 --axis alpha=64`` and ``lut eavg MODEL --axis ...``."""
     import time
@@ -1928,6 +1932,12 @@ def _lut_albedo(args) -> int:
     total = 1
     for spec in axes.values():
         total *= spec if isinstance(spec, int) else spec[0]
+    from brdf_fit.core.limits import check_bytes
+
+    # the table's values (float64, up to 4 channels), their float32 and file copies; the
+    # quadrature itself is streamed in blocks (tables/_stream.py) and does not grow with it
+    check_bytes(total * LUT_BYTES_PER_NODE,
+                f"lut {args.table}: {total:,} nodes at {LUT_BYTES_PER_NODE} bytes each")
     label = (f"{args.table} {args.model} ({total} nodes"
              + (", then E_avg" if args.table == "albedo" else "") + ")")
     bar, progress = _progress_callback(not args.quiet, label)

@@ -241,3 +241,47 @@ def test_make_plan_errors_name_choices():
         make_plan("four_axis", {"theta_i_deg": ["ten"]})
     assert set(PLANS) == {"in_plane", "hemisphere_grid", "four_axis", "random_sparse",
                           "merl_grid"}
+
+
+def test_plans_past_the_memory_limit_are_refused_before_allocation(tmp_path):
+    """Plans whose sample count (from their arguments alone) would pass the memory limit are a
+    one-line PlanError (issue 45: a hemisphere grid of 10^5 per axis grew to 23 GB and was
+    killed; random_sparse of 10^9 and merl_grid of 10^5 per axis ended in MemoryError), and
+    through `brdf-fit synth` a one-line error with exit status 2, the process at its imports'
+    memory; `lut albedo` on 10^6 x 10^6 nodes likewise."""
+    import json
+    import subprocess
+    import sys
+
+    from _helpers import PEAK_RSS_CODE, peak_kib
+
+    from data_synth.plans import PlanError, make_plan
+
+    for name, args in (("hemisphere_grid", {"n_theta_i": 10**5, "n_theta_o": 10**5,
+                                            "n_phi": 10**5}),
+                       ("random_sparse", {"n": 10**9}),
+                       ("merl_grid", {"n_theta_h": 10**5, "n_theta_d": 10**5, "n_phi_d": 10**5}),
+                       ("four_axis", {"theta_i_deg": list(np.linspace(0, 80, 2000)),
+                                      "theta_o_deg": list(np.linspace(0, 80, 2000)),
+                                      "phi_o_deg": list(np.linspace(0, 359, 2000))})):
+        with pytest.raises(PlanError, match=rf"plan {name}: [0-9,]+ samples .* over the memory "
+                                            "limit"):
+            make_plan(name, args)
+    recipe = tmp_path / "bomb.json"
+    recipe.write_text(json.dumps({"model": "lambert", "params": {"rho": 0.5}, "seed": 1, "plan": {
+        "name": "hemisphere_grid", "args": {"n_theta_i": 10**5, "n_theta_o": 10**5,
+                                            "n_phi": 10**5}}}))
+    code = PEAK_RSS_CODE + ("from brdf_fit.cli import main\n"
+                            "status = main(_s.argv[1:])\n"
+                            "_peak()\n"
+                            "_s.exit(status)\n")
+    for argv in (["synth", str(recipe), "-o", str(tmp_path / "x.npz")],
+                 ["lut", "albedo", "ggx", "--axis", "mu=1000000", "--axis", "alpha=1000000",
+                  "-o", str(tmp_path / "t.npz")]):
+        out = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True,
+                             text=True, timeout=300)
+        assert out.returncode == 2, out.stderr[-1500:]
+        errors = [ln for ln in out.stderr.splitlines() if ln.startswith("brdf-fit: error:")]
+        assert len(errors) == 1 and "over the memory limit" in errors[0], out.stderr
+        assert "Traceback" not in out.stderr
+        assert peak_kib(out.stderr) < 500 * 1024, out.stderr
