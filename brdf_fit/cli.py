@@ -1072,16 +1072,26 @@ def _fit_batch_values(args, entry, fix, init, fit_stream) -> int:
         values = np.load(args.values, mmap_mode="r")
     except (OSError, ValueError) as e:
         raise CLIError(f"{args.values}: cannot read a .npy array ({e})") from None
+    from brdf_fit.data import DataError, check_values, unit_directions
+
+    if values.dtype.kind != "f":
+        raise CLIError(f"{args.values}: dtype {values.dtype}, expected a float array of BRDF "
+                       "values")
     try:
-        with np.load(args.geometry) as g:
+        with np.load(args.geometry, allow_pickle=False) as g:
             wi, wo = np.asarray(g["wi"], float), np.asarray(g["wo"], float)
-    except (OSError, ValueError, KeyError) as e:
-        raise CLIError(f"{args.geometry}: needs arrays wi and wo ({e})") from None
+    except (OSError, ValueError, KeyError, AttributeError, TypeError) as e:
+        raise CLIError(f"{args.geometry}: needs a .npz with arrays wi and wo, (M, 3) ({e})"
+                       ) from None
     if values.ndim not in (2, 3) or wi.shape != (values.shape[1], 3) or wo.shape != wi.shape:
         raise CLIError(f"{args.values}: shape {values.shape} with wi {wi.shape}, wo "
                        f"{wo.shape}: expected (N, M[, C]) values and (M, 3) directions")
-    if np.any(wi[:, 2] < 0) or np.any(wo[:, 2] < 0):
-        raise CLIError(f"{args.geometry}: a direction below the horizon (z < 0)")
+    try:  # the rule of image stacks: normalised, zero-length and below-horizon refused
+        wi = unit_directions(wi, f"{args.geometry}: wi")
+        wo = unit_directions(wo, f"{args.geometry}: wo")
+        check_values(values, args.values)
+    except DataError as e:
+        raise CLIError(str(e)) from None
     out = _check_out_dir(args)
     _check_new_run(args, out)
     shard, sync = _join_run(args)

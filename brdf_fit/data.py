@@ -23,8 +23,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["GonioData", "DataError", "MAX_VALUE", "UNIT_TOL", "wavelength_channels",
-           "channel_wavelengths"]
+__all__ = ["GonioData", "DataError", "MAX_VALUE", "UNIT_TOL", "unit_directions", "check_values",
+           "wavelength_channels", "channel_wavelengths"]
 
 
 class DataError(ValueError):
@@ -41,6 +41,63 @@ UNIT_TOL = 1e-4
 #: (1e30 per sample) far inside float64: one value of 1e300 used to overflow the normal
 #: equations and hang the fit in an SVD of infinities.
 MAX_VALUE = 1e15
+
+
+#: a direction shorter than this is no direction at all (refused by :func:`unit_directions`)
+DIRECTION_MIN_LENGTH = 1e-12
+
+
+def _where(bad: np.ndarray) -> str:
+    """``"N rows, the first at index I"`` of a boolean mask over rows."""
+    idx = np.flatnonzero(bad)
+    return f"{idx.size} row(s), the first at index {int(idx[0])}"
+
+
+def unit_directions(a, what: str) -> np.ndarray:
+    """``(M, 3)`` directions as unit vectors, the rule every reader of bare direction arrays
+    follows (image stacks, ``fit-batch --geometry``): a row is normalised where its length
+    differs from 1 by more than :data:`UNIT_TOL`, and refused with :class:`DataError`, naming
+    ``what``, how many rows and the first, where it is not finite, shorter than
+    :data:`DIRECTION_MIN_LENGTH`, or below the horizon (z < 0)."""
+    v = np.asarray(a, float)
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise DataError(f"{what}: directions must have shape (M, 3), got {v.shape}")
+    bad = ~np.isfinite(v).all(axis=1)
+    if bad.any():
+        raise DataError(f"{what}: not finite in {_where(bad)}")
+    n = np.linalg.norm(v, axis=1)
+    bad = n < DIRECTION_MIN_LENGTH
+    if bad.any():
+        raise DataError(f"{what}: zero-length direction in {_where(bad)}")
+    v = np.where((np.abs(n - 1.0) > UNIT_TOL)[:, None], v / n[:, None], v)
+    bad = v[:, 2] < 0.0
+    if bad.any():
+        raise DataError(f"{what}: below the horizon (z < 0) in {_where(bad)}")
+    return v
+
+
+def check_values(values, what: str, block: int = 1 << 20) -> None:
+    """Refuse an array of measured values (any shape, e.g. a memory-mapped ``(N, M, C)``)
+    holding a negative or non-finite number, with :class:`DataError` naming ``what``, how many
+    and the first (as an index of the array); read ``block`` values at a time, so a
+    memory-mapped file is scanned without being loaded (a negative value made every fit fail
+    with nothing saying why; issue 45)."""
+    flat = np.asarray(values).reshape(-1)  # a view of a contiguous (memory-mapped) array
+    counts = {"negative": 0, "non-finite": 0}
+    first = {}
+    for s in range(0, flat.shape[0], block):
+        chunk = np.asarray(flat[s:s + block])
+        for kind, bad in (("non-finite", ~np.isfinite(chunk)), ("negative", chunk < 0)):
+            k = int(np.count_nonzero(bad))
+            if k:
+                counts[kind] += k
+                first.setdefault(kind, s + int(np.flatnonzero(bad)[0]))
+    shape = np.shape(values)
+    for kind in ("non-finite", "negative"):
+        if counts[kind]:
+            idx = tuple(int(i) for i in np.unravel_index(first[kind], shape))
+            raise DataError(f"{what}: {counts[kind]:,} {kind} value(s), the first at index "
+                            f"{idx} ({np.asarray(values)[idx]!r}); BRDF values are finite and >= 0")
 
 
 def wavelength_channels(wavelengths_nm) -> tuple[str, ...]:

@@ -197,7 +197,8 @@ def _arrays(data: GonioData, max_zenith_deg, dtype):
         cz = math.cos(math.radians(max_zenith_deg))
         keep &= (data.wi[:, 2] >= cz) & (data.wo[:, 2] >= cz)
     if not keep.any():
-        raise FitError(f"no samples left after the max_zenith_deg cut ({max_zenith_deg} deg)")
+        raise FitError("no samples to fit" if max_zenith_deg is None else
+                       f"no samples left after the max_zenith_deg cut ({max_zenith_deg} deg)")
     def kept(a):  # no copy where every sample is kept (a whole MERL file: 100 MB less)
         return None if a is None else np.asarray(a if keep.all() else a[keep], dtype)
 

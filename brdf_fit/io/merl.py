@@ -272,6 +272,9 @@ def read_merl(path) -> GonioData:
     raw = _read_raw(path).reshape(3, N_BINS)
     wi, wo = merl_bin_centres()
     keep = (raw >= 0.0).all(0) & (wi[:, 2] > 0.0) & (wo[:, 2] > 0.0)
+    if not keep.any():
+        raise DataError(f"{os.fspath(path)}: no valid bin: every bin above the horizon is "
+                        "missing (a negative raw value in some channel)")
     value = (raw[:, keep] * MERL_SCALES[:, None]).T
     return GonioData(
         wi=wi[keep],

@@ -231,6 +231,10 @@ def test_truncated_and_malformed_files(toy_file, tmp_path):
     with pytest.raises(DataError, match=r"non-finite value nan in channel B at bin "
                                         r"\(i_theta_h=2, i_theta_d=3, i_phi_d=7\)"):
         read_merl_table(p)
+    p = tmp_path / "empty.binary"  # every bin missing: said so (it was "no samples left
+    p.write_bytes(_header() + np.full(3 * N, -1.0).astype("<f8").tobytes())  # after a cut")
+    with pytest.raises(DataError, match=r"empty.binary: no valid bin"):
+        read_merl(p)
     with pytest.raises(DataError, match="cannot read MERL file"):
         read_merl(tmp_path / "missing.binary")
     assert not is_merl_file(tmp_path / "missing.binary")
