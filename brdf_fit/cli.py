@@ -522,14 +522,20 @@ def cmd_fit(args) -> int:
                      time_limit=args.time_limit, progress=progress)
     finally:
         progress.close()
-    exported = None
+    exported, write_error = None, None
     if export_kind is not None:
-        exported = _write_export(export_kind, args.export, entry.name, result.params, data,
-                                 name=os.path.splitext(os.path.basename(args.data))[0])
+        try:
+            exported = _write_export(export_kind, args.export, entry.name, result.params, data,
+                                     name=os.path.splitext(os.path.basename(args.data))[0])
+        except OSError as e:  # the fit is printed below all the same: nothing computed is lost
+            write_error = (f"--export {args.export}: cannot write ({e.strerror or e}); the "
+                           "fit is printed instead")
     if args.json:
         doc = result.to_dict()
         if exported is not None:
             doc["export"] = exported
+        if write_error is not None:
+            doc.update(error=write_error, exit_status=1)
         print(json.dumps(doc, indent=2))
     else:
         _print_fit(result, data, args.data)
@@ -539,6 +545,9 @@ def cmd_fit(args) -> int:
                   + ("(not verified)" if err is None else f"(round-trip error {err:.3g})")
                   + f": {exported['note']}")
             print(f"wrote {args.export}")
+    if write_error is not None:
+        print(f"brdf-fit: error: {write_error}", file=sys.stderr)
+        return 1
     failed = [c for c in result.checks if not c.ok]
     return 0 if result.converged and not failed else 1
 
@@ -793,8 +802,9 @@ def _write_export(kind: str, path: str, model: str, params: dict, data, name: st
             raise CLIError(f"--export: {exc}") from None
         text = cmi.scene_document([(name, e.scene_dict)],
                                   comment=f"brdf_fit fit: {model} fitted to {name}")
-        with open(path, "w", encoding="utf-8") as fh:
-            fh.write(text)
+        from brdf_fit.core.atomic import write_text_atomic
+
+        write_text_atomic(path, text)
     else:
         from brdf_fit.convert import gltf as cg
 
@@ -2443,6 +2453,8 @@ def main(argv: list[str] | None = None) -> int:
         return int(args.func(args) or 0)
     except KeyError as exc:  # unknown model (registry.UnknownModelError)
         print(f"brdf-fit: error: {exc}", file=sys.stderr)
+        if getattr(args, "json", False):
+            print(json.dumps({"error": str(exc).strip("'\""), "exit_status": 2}))
         return 2
     except BrokenPipeError:  # output piped into `head` and closed early: not an error
         sys.stderr.close()
@@ -2451,6 +2463,8 @@ def main(argv: list[str] | None = None) -> int:
         if isinstance(exc, _user_errors()):
             msg = " ".join(str(exc).split("\n"))
             print(f"brdf-fit: error: {msg}", file=sys.stderr)
+            if getattr(args, "json", False):  # a script that parses stdout gets an answer too
+                print(json.dumps({"error": msg, "exit_status": 2}))
             return 2
         raise
     finally:

@@ -78,6 +78,7 @@ from brdf_fit import registry
 from brdf_fit._version import __version__
 from brdf_fit.convert.error import radiance_error
 from brdf_fit.convert.phong_to_ggx import GRID, LOBE_N_PHI, LOBE_S, LOBE_THETA_I_DEG, geometry
+from brdf_fit.core.atomic import write_text_atomic
 from brdf_fit.core.numerics import ALPHA_MIN, INV_PI
 from brdf_fit.core.params import UnknownModelError
 from brdf_fit.core.validate import ParameterError
@@ -478,13 +479,12 @@ def gltf_document(exports, digits: int = DOCUMENT_DIGITS) -> dict:
 
 
 def write_gltf(path, exports_or_document, digits: int = DOCUMENT_DIGITS) -> None:
-    """Write :func:`gltf_document` of the exports (or a document) as JSON (sorted keys)."""
+    """Write :func:`gltf_document` of the exports (or a document) as JSON (sorted keys),
+    whole or not at all (:mod:`brdf_fit.core.atomic`)."""
     doc = exports_or_document
     if not isinstance(doc, dict):
         doc = gltf_document(doc, digits)
-    with open(path, "w", encoding="utf-8") as fh:
-        json.dump(doc, fh, indent=2, sort_keys=True)
-        fh.write("\n")
+    write_text_atomic(path, json.dumps(doc, indent=2, sort_keys=True) + "\n")
 
 
 def _is_num(x) -> bool:

@@ -25,12 +25,12 @@ import hashlib
 import io
 import json
 import os
-import tempfile
 import time
 from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from brdf_fit.core.atomic import write_text_atomic
 from brdf_fit.data import GonioData
 from brdf_fit.fitting.errors import ERRORS, model_errors
 from brdf_fit.fitting.problem import entry_labels
@@ -70,20 +70,6 @@ def _material_names(paths: Sequence[str]) -> list[str]:
 def _pair_key(path: str, model: str, options: dict) -> str:
     text = json.dumps([os.path.abspath(path), model, options], sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:24]
-
-
-def _write_atomic(path: str, text: str) -> None:
-    """``text`` to ``path`` through a temporary file in the same folder, renamed into place."""
-    folder = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", dir=folder)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def _row(material: str, path: str, result: FitResult, data: GonioData) -> dict:
@@ -165,7 +151,7 @@ def fit_database(paths: Sequence[str], models: Sequence[str], folder: str, *,
                 failures.append(f"{material} {model}: {e}")
                 text = f"{material} {model}: FAILED ({e})"
             else:
-                _write_atomic(target, json.dumps(row))
+                write_text_atomic(target, json.dumps(row))
                 done_now += 1
                 text = (f"{material} {model}: rel. RMS {row['errors']['rel_rms']:.4g}, "
                         f"{'converged' if row['converged'] else 'NOT converged'}, "
@@ -217,8 +203,8 @@ def write_table(path: str, rows: Sequence[dict], meta: dict) -> list[str]:
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(header)
     w.writerows(lines)
-    _write_atomic(path, buf.getvalue())
+    write_text_atomic(path, buf.getvalue())
     js = os.path.splitext(path)[0] + ".json"
-    _write_atomic(js, json.dumps({**meta, "written": time.strftime("%Y-%m-%dT%H:%M:%S"),
+    write_text_atomic(js, json.dumps({**meta, "written": time.strftime("%Y-%m-%dT%H:%M:%S"),
                                   "errors": dict(ERRORS), "rows": list(rows)}, indent=1))
     return [path, js]

@@ -341,3 +341,36 @@ def test_fit_batch_streamed_out_dir_and_resume(csv_data, tmp_path, capsys):
                  "--out-dir", str(tmp_path / "s2"), "--block-size", "2", "--quiet"]) == 2
     one_line_error(capsys, "small.csv", "--out-dir needs every file like")
     assert (tmp_path / "s2" / "block_000000.npz").exists()  # written before the bad file
+
+
+def test_json_answers_on_failure_and_a_failed_export_keeps_the_fit(csv_data, tmp_path, capsys,
+                                                                    monkeypatch):
+    """--json always prints a JSON object, a failure's with `error` and `exit_status`; a fit
+    whose export cannot be written (here: the disk full) still prints the fit, names the output
+    that failed, exits 1 and leaves no temporary file (issue 45: traceback, empty stdout, the
+    fit lost)."""
+    import errno
+
+    from brdf_fit.core import atomic
+
+    assert main(["fit", str(tmp_path / "none.csv"), "--model", "ggx", "--json"]) == 2
+    out = capsys.readouterr().out
+    doc = json.loads(out)
+    assert doc["exit_status"] == 2 and "none.csv" in doc["error"]
+    assert main(["fit", str(csv_data), "--model", "nosuch", "--json"]) == 2
+    assert "nosuch" in json.loads(capsys.readouterr().out)["error"]
+
+    def full_disk(fd):  # the temporary file's flush to disk fails, as on a full disk
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(atomic.os, "fsync", full_disk)
+    target = tmp_path / "f.xml"
+    rc = main(["fit", str(csv_data), "--model", "ggx", "--export", str(target), "--json"])
+    captured = capsys.readouterr()
+    doc = json.loads(captured.out)
+    assert rc == 1 and doc["converged"] and doc["exit_status"] == 1
+    assert "f.xml: cannot write (No space left on device)" in doc["error"]
+    np.testing.assert_allclose(doc["params"]["alpha"], TRUTH["alpha"], rtol=1e-6)
+    assert "f.xml: cannot write" in captured.err and "Traceback" not in captured.err
+    assert not target.exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".tmp-")]
