@@ -711,23 +711,30 @@ def _print_database(run, models) -> None:
         print("(* not converged)")
 
 
+def _child_argv(args, with_value: tuple[str, ...], flags: tuple[str, ...]) -> list[str]:
+    """This command's arguments for the processes a launcher starts: without the options
+    ``with_value`` (and their values, in either spelling) and the ``flags``."""
+    argv, skip = [], False
+    for a in sys.argv[1:] if getattr(args, "_argv", None) is None else args._argv:
+        if skip:
+            skip = False
+            continue
+        if a in with_value:
+            skip = True
+            continue
+        if a.startswith(tuple(f"{o}=" for o in with_value)) or a in flags:
+            continue
+        argv.append(a)
+    return argv
+
+
 def _database_processes(args) -> None:
     """``--processes N``: N local processes, each fitting every N-th pair (``--shard I/N``);
     returns when all have ended (the caller then assembles the table, fitting whatever a
     process could not finish). Ctrl-C stops them all."""
     import subprocess
 
-    argv, skip = [], False
-    for a in sys.argv[1:] if getattr(args, "_argv", None) is None else args._argv:
-        if skip:
-            skip = False
-            continue
-        if a == "--processes":
-            skip = True
-            continue
-        if a.startswith("--processes=") or a in ("--json", "--quiet"):
-            continue
-        argv.append(a)
+    argv = _child_argv(args, ("--processes",), ("--json", "--quiet"))
     n = args.processes
     procs = [subprocess.Popen([sys.executable, "-m", "brdf_fit.cli", *argv, "--shard",
                                f"{i}/{n}", *(["--quiet"] if args.quiet else [])],
@@ -1283,20 +1290,8 @@ def _fit_batch_processes(args) -> int:
     with socket.socket() as sock:  # a free port for process 0's coordination service
         sock.bind(("127.0.0.1", 0))
         port = sock.getsockname()[1]
-    argv, skip = [], False
-    for a in sys.argv[1:] if args._argv is None else args._argv:
-        if skip:
-            skip = False
-            continue
-        if a == "--processes":
-            skip = True
-            continue
-        if a == "--out":  # the report (and its table) is this process's
-            skip = True
-            continue
-        if a.startswith(("--processes=", "--out=")) or a in ("--resume", "--json", "--quiet"):
-            continue
-        argv.append(a)
+    # the report (and its table, --out) is this process's
+    argv = _child_argv(args, ("--processes", "--out"), ("--resume", "--json", "--quiet"))
     n = args.processes
     procs = [subprocess.Popen([sys.executable, "-m", "brdf_fit.cli", *argv, "--quiet",
                                "--coordinator", f"127.0.0.1:{port}", "--num-processes", str(n),

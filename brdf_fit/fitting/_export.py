@@ -43,9 +43,10 @@ import os
 import pathlib
 import re
 import shutil
-import tempfile
 from collections.abc import Callable
 from typing import Any
+
+from brdf_fit.core.atomic import write_bytes_atomic
 
 #: the environment variable naming the folder of exported programs (unset: no cache)
 ENV = "BRDF_FIT_EXPORT_DIR"
@@ -174,19 +175,8 @@ def _read(path: str, sig_leaves: int):
 def _write(path: str, exp) -> None:
     payload = bytes(exp.serialize())
     blob = _MAGIC + hashlib.sha256(payload).digest() + payload
-    folder = os.path.dirname(path)
-    os.makedirs(folder, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(blob)
-        os.replace(tmp, path)  # atomic: a concurrent reader sees the old file or the new one
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    write_bytes_atomic(path, blob)  # a concurrent reader sees the old file or the new one
 
 
 #: custom-call targets allowed in exported programs (each failed export costs a trace and a
