@@ -352,6 +352,8 @@ def check_output_file(path: str, exts: tuple[str, ...], flag: str) -> None:
     if p.is_dir():
         raise CLIError(f"{path}: {flag} names a folder, not a file")
     parent = p.parent if str(p.parent) else pathlib.Path(".")
+    if parent.exists() and not parent.is_dir():
+        raise CLIError(f"{path}: cannot write: {str(parent)!r} is a file, not a folder")
     if not parent.is_dir():
         raise CLIError(f"{path}: cannot write: folder {str(parent)!r} does not exist")
     if not os.access(parent, os.W_OK) or (p.exists() and not os.access(p, os.W_OK)):
@@ -1253,6 +1255,8 @@ def _check_out_dir(args):
     if out.exists() and not out.is_dir():
         raise CLIError(f"{args.out_dir}: --out-dir names an existing file, not a folder")
     parent = out.parent if str(out.parent) else pathlib.Path(".")
+    if not out.exists() and parent.exists() and not parent.is_dir():
+        raise CLIError(f"{args.out_dir}: cannot write: {str(parent)!r} is a file, not a folder")
     if not out.exists() and not parent.is_dir():
         raise CLIError(f"{args.out_dir}: cannot write: folder {str(parent)!r} does not exist")
     return out

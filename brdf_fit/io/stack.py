@@ -141,6 +141,9 @@ def _direction(where, img: dict, which: str) -> np.ndarray:
             th, ph = np.radians(float(img[t])), np.radians(float(img[p]))
         except (TypeError, ValueError):
             raise _err(where, f"{t} and {p} must be numbers (degrees)") from None
+        if not (np.isfinite(th) and np.isfinite(ph)):
+            raise _err(where, f"{t} and {p} must be finite numbers (degrees), got "
+                              f"{img[t]}, {img[p]}")
         if not (0.0 <= np.degrees(th) <= 90.0):
             raise _err(where, f"{t} = {img[t]} degrees is below the horizon (0..90)")
         v = np.array([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)])

@@ -179,6 +179,9 @@ def test_synth_errors(tmp_path, capsys):
     assert not (tmp_path / "x.csv").exists()
     assert main(["synth", str(recipe), "-o", str(tmp_path / "no" / "dir" / "x.csv")]) == 2
     one_line_error(capsys, "cannot write")
+    (tmp_path / "afile").write_text("")  # a file where a folder belongs: said so (issue 45)
+    assert main(["synth", str(recipe), "-o", str(tmp_path / "afile" / "x.csv")]) == 2
+    one_line_error(capsys, "afile' is a file, not a folder")
 
 
 def test_demo_plumbing(tmp_path, capsys, monkeypatch):

@@ -98,6 +98,9 @@ def _good(tmp_path):
     (lambda d: d["images"][1].update(theta_i=10), "give wi or theta_i/phi_i, not both"),
     (lambda d: d["images"][0].update(wo=None, theta_o=95, phi_o=0) or d["images"][0].pop("wo"),
      "theta_o = 95 degrees is below the horizon"),
+    # NaN is not below the horizon: it is no angle (issue 45)
+    (lambda d: d["images"][0].update(wo=None, theta_o=float("nan"), phi_o=0)
+     or d["images"][0].pop("wo"), "theta_o and phi_o must be finite numbers (degrees), got nan"),
     (lambda d: d["images"][1].update(file="small.npy"), "size 2x2; the stack's first image"),
     (lambda d: d["images"][1].update(file="grey.npy"), "no channel 'R'"),
     (lambda d: d.update(channels="RGB"), "channels must be a list"),
