@@ -1039,6 +1039,11 @@ def _stream_report(args, entry, res, out, full, what, wrote, extra, table=None,
     folder holds besides the blocks and the manifest; ``extra``: the JSON's own fields;
     ``table``: the per-file table written (--out), if any; ``measured``: the problems that
     count (a mask; default all)."""
+    before = getattr(args, "_blocks_before", None)
+    if before is not None:  # a --processes launch: what its processes wrote is fitted now
+        done = sorted({*res.fitted, *res.skipped})
+        res.fitted = [k for k in done if k not in before]
+        res.skipped = [k for k in done if k in before]
     conv = np.asarray(full.converged)
     conv = float(np.mean(conv if measured is None else conv[measured])) if (
         measured is None or np.any(measured)) else 0.0
@@ -1297,6 +1302,7 @@ def _fit_batch_processes(args) -> int:
     # the report (and its table, --out) is this process's
     argv = _child_argv(args, ("--processes", "--out"), ("--resume", "--json", "--quiet"))
     n = args.processes
+    before = {int(p.stem.split("_")[1]) for p in out.glob("block_*.npz")} if out.is_dir() else set()
     procs = [subprocess.Popen([sys.executable, "-m", "brdf_fit.cli", *argv, "--quiet",
                                "--coordinator", f"127.0.0.1:{port}", "--num-processes", str(n),
                                "--process-id", str(i)], stdout=subprocess.DEVNULL)
@@ -1329,8 +1335,10 @@ def _fit_batch_processes(args) -> int:
                         if c not in (0, 1))
         raise CLIError(f"{bad}; the blocks written are kept in {args.out_dir}: --resume "
                        "completes the run")
-    # every block is written: the report is a resumed run that fits nothing
+    # every block is written: the report is a resumed run that fits nothing; its counts are
+    # this launch's (the blocks the processes wrote are "fitted now", not "already written")
     args.processes, args.resume = None, True
+    args._blocks_before = before
     return _fit_batch_streamed(args, *_fit_batch_setup(args))
 
 

@@ -85,7 +85,13 @@ def test_two_processes_equal_one(tmp_path, capsys):
                str(tmp_path / "out"), "--block-size", "512", "--processes", "2", "--quiet"])
     out = capsys.readouterr().out
     assert rc == 0, out
-    assert "(0 fitted now, 8 already written)" in out  # all eight by the two processes
+    # all eight by the two processes of this launch: fitted now (it said "0 fitted now, 8
+    # already written" on fresh runs and resumes alike; issue 45)
+    assert "(8 fitted now, 0 already written)" in out
+    rc = main(["fit-batch", "--images", str(stack), "--model", "ggx", "--out-dir",
+               str(tmp_path / "out"), "--block-size", "512", "--processes", "2", "--quiet",
+               "--resume"])
+    assert rc == 0 and "(0 fitted now, 8 already written)" in capsys.readouterr().out
     ref = fit_stream(vals, "ggx", None, wi=wi, wo=wo, block_size=512, progress=False).result()
     maps = tmp_path / "out" / "maps"
     for k in ref.params:
