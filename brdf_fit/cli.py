@@ -652,11 +652,12 @@ def _fit_database(args, models) -> int:
         run = database.fit_database(files, names, folder, fit_options=fit_options,
                                     identity=options, shard=shard, progress=progress,
                                     reader=reader)
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, _Terminated) as e:
         kept = database.count_finished(files, names, folder, options)
-        print(f"interrupted: {kept} finished pair(s) kept in {folder}; the same command "
-              "continues the run", file=sys.stderr)
-        return 130
+        print(f"brdf-fit: {'interrupted' if isinstance(e, KeyboardInterrupt) else 'terminated'}"
+              f": {kept} finished pair(s) kept in {folder}; the same command continues the run",
+              file=sys.stderr)
+        return 130 if isinstance(e, KeyboardInterrupt) else 143
     if before is not None:  # the processes fitted what this run found done, but `before`
         run.fitted_now += run.already_done - before
         run.already_done = before
@@ -713,6 +714,30 @@ def _print_database(run, models) -> None:
         print("(* not converged)")
 
 
+#: seconds a stopped launcher's processes get to end on SIGTERM before they are killed (a
+#: process inside an XLA computation or a barrier of JAX's coordination service answers only
+#: when it returns: 12-42 s measured; every block a process finished is on disk already)
+STOP_GRACE_S = 3.0
+
+
+def _stop_children(procs) -> None:
+    """End every process of ``procs`` (subprocess.Popen): SIGTERM, then SIGKILL for whichever
+    is still running after :data:`STOP_GRACE_S`; waits for all."""
+    import subprocess
+    import time
+
+    for p in procs:
+        if p.poll() is None:
+            p.terminate()
+    deadline = time.monotonic() + STOP_GRACE_S
+    for p in procs:
+        try:
+            p.wait(timeout=max(0.0, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
+
+
 def _child_argv(args, with_value: tuple[str, ...], flags: tuple[str, ...]) -> list[str]:
     """This command's arguments for the processes a launcher starts: without the options
     ``with_value`` (and their values, in either spelling) and the ``flags``."""
@@ -744,11 +769,8 @@ def _database_processes(args) -> None:
     try:
         for p in procs:
             p.wait()
-    except KeyboardInterrupt:
-        for p in procs:
-            p.terminate()
-        for p in procs:
-            p.wait()
+    except BaseException:  # Ctrl-C or SIGTERM (_Terminated): no process outlives this one
+        _stop_children(procs)
         raise
 
 
@@ -1320,9 +1342,8 @@ def _fit_batch_processes(args) -> int:
                       flush=True)
                 last, shown = now, k
             time.sleep(0.5)
-    except KeyboardInterrupt:
-        for p in procs:
-            p.terminate()
+    except BaseException:  # Ctrl-C or SIGTERM (_Terminated): no process outlives this one
+        _stop_children(procs)
         raise
     finally:
         if not args.quiet and tty:
@@ -2446,7 +2467,30 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
     print(f"brdf-fit: warning: {' '.join(str(message).split())}", file=file or sys.stderr)
 
 
+class _Terminated(BaseException):
+    """SIGTERM, raised in the main thread (as KeyboardInterrupt is for SIGINT) so that a
+    command stops the same way: what is finished kept, one line, exit status 143."""
+
+
+def _raise_terminated(signum, frame):
+    raise _Terminated()
+
+
+def _interrupted(args, status: int) -> int:
+    """One line for an interrupted command (130: SIGINT, 143: SIGTERM), saying how to go on
+    where the command keeps its work in a folder; the JSON answer under --json."""
+    what = "interrupted" if status == 130 else "terminated"
+    out_dir = getattr(args, "out_dir", None)
+    msg = (f"{what}; the blocks written are kept in {out_dir}: the same command with --resume "
+           "continues" if out_dir else what)
+    print(f"brdf-fit: {msg}", file=sys.stderr)
+    if getattr(args, "json", False):
+        print(json.dumps({"error": msg, "exit_status": status}))
+    return status
+
+
 def main(argv: list[str] | None = None) -> int:
+    import signal
     import warnings
 
     args = build_parser().parse_args(argv)
@@ -2457,7 +2501,15 @@ def main(argv: list[str] | None = None) -> int:
     shown = warnings.showwarning
     warnings.showwarning = _show_warning
     try:
+        previous = signal.signal(signal.SIGTERM, _raise_terminated)
+    except ValueError:  # not the main thread: leave signals to whoever owns it
+        previous = None
+    try:
         return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        return _interrupted(args, 130)
+    except _Terminated:
+        return _interrupted(args, 143)
     except KeyError as exc:  # unknown model (registry.UnknownModelError)
         print(f"brdf-fit: error: {exc}", file=sys.stderr)
         if getattr(args, "json", False):
@@ -2476,6 +2528,8 @@ def main(argv: list[str] | None = None) -> int:
         raise
     finally:
         warnings.showwarning = shown
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

@@ -288,3 +288,60 @@ def test_cluster_environment(tmp_path, capsys, monkeypatch):
     assert f"process 1 of 2: could not join the run at the coordinator at localhost:{port} " \
            "within 3 s" in err, err
     assert time.time() - t0 < 30
+
+
+def _running(marker: str) -> list[int]:
+    """Process ids whose command line holds ``marker`` (read from /proc)."""
+    pids = []
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                cmd = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+            except OSError:
+                continue
+            if marker in cmd:
+                pids.append(int(d.name))
+    return pids
+
+
+@pytest.mark.slow
+def test_signals_end_the_run_and_resume_completes_it(tmp_path):
+    """SIGINT to a single-process fit-batch and SIGTERM to a --processes 2 launcher, each once
+    a block is written: exit 130 / 143 with one line and no traceback, no process of the run
+    left 5 s later, no temporary file, and --resume then gives the maps of an uninterrupted
+    run (issue 45: the workers outlived their launcher, a Ctrl-C printed tracebacks)."""
+    vals, wi, wo = _problems(tmp_path, 4096)
+    np.save(tmp_path / "v.npy", vals)
+    np.savez(tmp_path / "g.npz", wi=wi, wo=wo)
+    ref = fit_stream(vals, "ggx", None, wi=wi, wo=wo, block_size=256, progress=False).result()
+    env = {**os.environ, "BRDF_FIT_CACHE_DIR": str(tmp_path / "cache")}
+    env.pop("BRDF_FIT_NO_CACHE", None)
+    for name, extra, sig, status in (("one", [], signal.SIGINT, 130),
+                                     ("two", ["--processes", "2"], signal.SIGTERM, 143)):
+        out = tmp_path / name
+        argv = [sys.executable, "-m", "brdf_fit.cli", "fit-batch", "--values",
+                str(tmp_path / "v.npy"), "--geometry", str(tmp_path / "g.npz"), "--model",
+                "ggx", "--out-dir", str(out), "--block-size", "256", "--quiet", *extra]
+        p = subprocess.Popen(argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                             text=True)
+        deadline = time.monotonic() + 300
+        while time.monotonic() < deadline and not list(out.glob("block_*.npz")):
+            time.sleep(0.05)
+        p.send_signal(sig)
+        stdout, stderr = p.communicate(timeout=120)
+        assert p.returncode == status, stderr[-2000:]
+        lines = [ln for ln in stderr.splitlines() if ln.startswith("brdf-fit:")]
+        assert len(lines) == 1 and "--resume continues" in lines[0], stderr[-2000:]
+        assert "Traceback" not in stderr
+        time.sleep(5)
+        assert _running(str(out)) == [], f"{name}: processes of the run left"
+        assert not list(out.glob(".block_*.tmp-*"))
+        kept = len(list(out.glob("block_*.npz")))
+        assert 1 <= kept < 16
+        rc = subprocess.run([*argv, "--resume"], env=env, capture_output=True, text=True,
+                            timeout=600).returncode
+        assert rc == 0
+        for k in ref.params:
+            got = np.load(out / "maps" / f"params_{k}.npy")
+            np.testing.assert_allclose(got.reshape(ref.params[k].shape), ref.params[k],
+                                       rtol=1e-12, atol=0, err_msg=f"{name} {k}")
