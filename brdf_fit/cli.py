@@ -722,7 +722,10 @@ STOP_GRACE_S = 3.0
 
 def _stop_children(procs) -> None:
     """End every process of ``procs`` (subprocess.Popen): SIGTERM, then SIGKILL for whichever
-    is still running after :data:`STOP_GRACE_S`; waits for all."""
+    is still running after :data:`STOP_GRACE_S`; waits for all. The launchers start their
+    processes in sessions of their own, so a Ctrl-C at the terminal (SIGINT to the foreground
+    group) reaches the launcher alone, which stops them here and prints the one line (each
+    process printed its own traceback before)."""
     import subprocess
     import time
 
@@ -765,7 +768,8 @@ def _database_processes(args) -> None:
     n = args.processes
     procs = [subprocess.Popen([sys.executable, "-m", "brdf_fit.cli", *argv, "--shard",
                                f"{i}/{n}", *(["--quiet"] if args.quiet else [])],
-                              stdout=subprocess.DEVNULL) for i in range(n)]
+                              stdout=subprocess.DEVNULL, start_new_session=True)
+             for i in range(n)]
     try:
         for p in procs:
             p.wait()
@@ -1327,7 +1331,8 @@ def _fit_batch_processes(args) -> int:
     before = {int(p.stem.split("_")[1]) for p in out.glob("block_*.npz")} if out.is_dir() else set()
     procs = [subprocess.Popen([sys.executable, "-m", "brdf_fit.cli", *argv, "--quiet",
                                "--coordinator", f"127.0.0.1:{port}", "--num-processes", str(n),
-                               "--process-id", str(i)], stdout=subprocess.DEVNULL)
+                               "--process-id", str(i)], stdout=subprocess.DEVNULL,
+                              start_new_session=True)
              for i in range(n)]
     t0 = time.perf_counter()
     tty, last, shown = sys.stderr.isatty(), -1.0, None
