@@ -587,6 +587,21 @@ def _parse_shard(text: str) -> tuple[int, int]:
 
 
 def _fit_database(args, models) -> int:
+    """:func:`_fit_database_run` holding the run lock of the table's parts folder
+    (:mod:`brdf_fit.core.runlock`), except for one shard of a run (``--shard``: the launcher
+    holds it, or the machines of a shared folder each run their own share)."""
+    from brdf_fit.fitting.database import PARTS_SUFFIX
+
+    parent = os.path.dirname(os.path.abspath(args.table)) if args.table else None
+    if args.shard or args.table is None or not os.path.isdir(parent):
+        return _fit_database_run(args, models)  # (a missing folder is its error to report)
+    from brdf_fit.core.runlock import hold
+
+    with hold(args.table + PARTS_SUFFIX):
+        return _fit_database_run(args, models)
+
+
+def _fit_database_run(args, models) -> int:
     """``brdf-fit fit FILES --model A,B --table OUT.csv``: every file fitted to every model
     (:mod:`brdf_fit.fitting.database`), kept pair by pair, resumable, over several processes
     with ``--processes N`` (or ``--shard I/N`` per machine on a shared folder)."""
@@ -987,6 +1002,21 @@ def _geometry(ds):
 
 
 def _fit_batch_streamed(args, entry, fix, init) -> int:
+    """:func:`_fit_batch_run` holding the output folder's run lock
+    (:mod:`brdf_fit.core.runlock`: a second run on the folder stops at once, naming the
+    holder), except in a process that joins a multi-process run (its launcher or lead holds the
+    folder; on several machines the lock is not taken, as each machine sees its own)."""
+    if (getattr(args, "_locked", False) or args.coordinator or args.cluster
+            or args.process_id is not None):
+        return _fit_batch_run(args, entry, fix, init)
+    from brdf_fit.core.runlock import hold
+
+    with hold(_check_out_dir(args)):
+        args._locked = True
+        return _fit_batch_run(args, entry, fix, init)
+
+
+def _fit_batch_run(args, entry, fix, init) -> int:
     """``fit-batch --out-dir DIR``: the files are read block by block (``--block-size``
     files at a time, default from a 512 MB budget) and fitted by
     :func:`brdf_fit.fitting.stream.fit_stream`, which writes each finished block to DIR
@@ -2407,6 +2437,7 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     errors: list[type[BaseException]] = [CLIError]
     for module, names in (("brdf_fit.core.validate", ("ParameterError",)),
                           ("brdf_fit.core.limits", ("LimitError",)),
+                          ("brdf_fit.core.runlock", ("FolderBusy",)),
                           ("brdf_fit.fitting.problem", ("FitError",)),
                           ("brdf_fit.data", ("DataError",)),
                           ("data_synth.recipes", ("RecipeError",)),
