@@ -41,8 +41,11 @@ def test_selects_the_right_kind_of_model(name):
     assert (s.choice in DIFFUSE) == (name == "lambert"), s.choice
     ch = s.candidate(s.choice)
     assert ch.within_budget and ch.error <= s.budget
-    # the choice is the cheapest candidate within the budget
-    assert all(c.cost_ns >= ch.cost_ns for c in s.candidates if c.within_budget)
+    # the choice is the cheapest candidate within the budget by the committed cost table (the
+    # selector's rule; live ns/eval move with the machine's load, and this assertion on them
+    # failed once in a slow-set run beside other work, 2026-12-06)
+    assert all(c.cost_rel is not None for c in s.candidates)
+    assert all(c.cost_rel >= ch.cost_rel for c in s.candidates if c.within_budget)
     # the true model family reaches the noise: error ~1%, reduced chi-square ~1
     truth = s.candidate(TRUTHS[name][0])
     assert truth.error < 0.02 and 0.5 < truth.reduced_chi2 < 2.0
