@@ -324,8 +324,8 @@ def test_fit_batch_streamed_out_dir_and_resume(csv_data, tmp_path, capsys):
     doc = json.loads(cap.out)
     assert doc["blocks"] == 2 and doc["fitted"] == [0, 1] and doc["converged"] == 1.0
     assert "3/3" in cap.err
-    assert sorted(p.name for p in out.iterdir()) == [
-        "block_000000.npz", "block_000001.npz", "files.txt", "manifest.json"]
+    assert sorted(p.name for p in out.iterdir()) == [  # the run's lock file stays (runlock)
+        ".brdf_fit.lock", "block_000000.npz", "block_000001.npz", "files.txt", "manifest.json"]
     rows = json.loads((tmp_path / "t.json").read_text())
     for r in rows:
         np.testing.assert_allclose(r["params"]["alpha"], 0.23, rtol=1e-7)
