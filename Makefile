@@ -20,9 +20,10 @@ demo: $(STAMP)          ## the main job on its embedded default
 
 # the suite runs in parallel, one process per core (pytest-xdist; whole files per worker, so a
 # file's tests share their compilations; ~94% of the time is XLA compiling). The default set:
-# 8:54 for 1767 tests on 2 idle AMD EPYC cores (AVX-512) from a fresh clone of d7708d1
+# 9:24 for 1779 tests on 2 idle AMD EPYC cores (AVX-512) from a fresh clone of 65dfd97
 # (2026-12-06); the slow set (`test-slow`, which CI runs too): 30:26 for 1604 tests from a
-# clone of 8a1d978 (CI in all, setup + test + docs + test-slow: ~45 minutes there).
+# clone of 8a1d978, 30:53 for 1613 from 6750f02 (CI in all, setup + test + docs + test-slow:
+# ~45 minutes there).
 # On an AVX2 machine, or to check a bound for one: XLA_FLAGS=--xla_cpu_max_isa=AVX2 make test
 XDIST  := -n auto --maxprocesses=4 --dist loadfile
 
