@@ -40,7 +40,7 @@ import numpy as np
 
 from brdf_fit.fitting import _lm
 from brdf_fit.fitting._export import ExportedCall, export_key
-from brdf_fit.fitting.problem import FitProblem, at_bound
+from brdf_fit.fitting.problem import FitProblem
 from brdf_fit.fitting.solvers import bucket
 
 __all__ = ["CHUNK", "CHUNKED_FROM", "COARSE_CHUNKS", "ChunkedData", "ChunkedSolution",
@@ -82,12 +82,12 @@ def chunk_data(problem: FitProblem, arrays, n_used: int, seed: int = 0,
     and sorted (a gather of it costs little; a random order of every sample cost 0.43 s of a
     1.1-million-sample fit, measured). ``chunk``: samples per chunk (default :data:`CHUNK`)."""
     chunk = CHUNK if chunk is None else int(chunk)
-    wi, wo, f, w, sigma, floor = arrays
+    wi, wo = arrays[:2]
     n_chunks = -(-bucket(n_used) // chunk)
     coarse = COARSE_CHUNKS if COARSE_CHUNKS * chunk < n_used else 0
     subset = (np.sort(np.random.default_rng(seed).choice(n_used, coarse * chunk, replace=False))
               if coarse else np.zeros(0, int))
-    mul, gf, scale = problem.prepare((wi, wo, f, w, sigma, floor), np)[2:]
+    mul, gf, scale = problem.prepare(arrays, np)[2:]
     if scale is None:  # the padding needs a scale of 0; 1 elsewhere changes no residual
         scale = np.ones_like(gf)
 
@@ -163,11 +163,8 @@ def _on_state(fn, returns_state: bool = False):
     return call
 
 
-
 def _programs(problem: FitProblem, n_channels: int, sandwich: bool) -> _Programs:
-    fixed_sig = tuple(sorted((k, tuple(np.shape(v)), str(jnp.asarray(v).dtype))
-                             for k, v in problem.fixed.items()))
-    key = (problem.key, fixed_sig, int(n_channels), bool(sandwich), "chunked")
+    key = (problem.key, problem.fixed_signature(), int(n_channels), bool(sandwich), "chunked")
     got = _PROGRAMS.get(key)
     if got is not None:
         return got
@@ -298,11 +295,7 @@ def converged_at_bounds(problem: FitProblem, state) -> bool:
     logistic transform, where batch-lm's stall rule stops it; the dense solver reports the
     same point converged, with the parameter at bound (a lambert fit of a metal: rho at 1 in
     every channel; a GGX fit of gold: f0 at 1 in red)."""
-    phys = problem.unflatten(jnp.asarray(state.u))
-    lay = problem.layout
-    bound = lay.join({n: at_bound(tr, np.asarray(phys[n]))
-                      for n, tr in zip(lay.names, lay.transforms, strict=True)}, xp=np)
-    bound = np.asarray(bound, bool)
+    bound = problem.layout.at_bound(problem.unflatten(jnp.asarray(state.u)))
     if not bound.any():
         return False
     free = ~bound

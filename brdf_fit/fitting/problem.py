@@ -821,6 +821,13 @@ class ParamLayout:
                 idx[sl] = np.arange(size)
         return idx
 
+    def at_bound(self, params: Mapping) -> np.ndarray:
+        """Per flat entry: whether the fitted value (``params``: physical, by name) sits at an
+        end of its interval (:func:`at_bound`)."""
+        return np.asarray(self.join({n: at_bound(tr, np.asarray(params[n])) for n, tr in
+                                     zip(self.names, self.transforms, strict=True)}, xp=np),
+                          bool)
+
     def mask(self, names) -> np.ndarray:
         """Per flat entry: whether it belongs to one of ``names``."""
         m = np.zeros(self.size, bool)
@@ -883,6 +890,12 @@ class FitProblem:
     def key(self):
         """Hashable: equal for problems whose solvers compile to the same function."""
         return (self.source.key, self.layout, self.metric, self.cos_weight)
+
+    def fixed_signature(self):
+        """Hashable: the names, shapes and dtypes of the fixed values (what a compiled program
+        of this problem depends on besides :attr:`key`; their values are its arguments)."""
+        return tuple(sorted((k, tuple(np.shape(v)), str(jnp.asarray(v).dtype))
+                            for k, v in self.fixed.items()))
 
     def with_fixed(self, fixed) -> FitProblem:
         return dataclasses.replace(self, fixed=fixed)

@@ -248,10 +248,8 @@ def _compiled(problem: FitProblem, n_channels: int, solver, rtol, atol, max_step
     layout, metric, cos_weight; the names and shapes of the fixed values; the options). A
     fresh ``jax.jit`` per call, as before, traced and compiled anew each time even for
     the same model and data shape: 1-5 s per fit, most of a warm ``select``."""
-    fixed_sig = tuple(sorted((k, tuple(np.shape(v)), str(jnp.asarray(v).dtype))
-                             for k, v in problem.fixed.items()))
-    key = (problem.key, fixed_sig, int(n_channels), solver, float(rtol), float(atol),
-           int(max_steps))
+    key = (problem.key, problem.fixed_signature(), int(n_channels), solver, float(rtol),
+           float(atol), int(max_steps))
     got = _JITTED.get(key)
     if got is not None:
         return got
@@ -442,18 +440,16 @@ def fit(
         (u, ok, steps), loss = best
         params, se, rms, codes, finite = _dense_stderr(jitted, u, arrays, fx, n_used * C,
                                                        m_eff, sandwich, p)
-    stderr = {}
+    stderr, bound_names = {}, ()
     if p:
-        bound = layout.join({n: at_bound(tr, params[n])
-                             for n, tr in zip(free, layout.transforms, strict=True)}, xp=np)
+        bound = layout.at_bound(params)
+        bound_names = tuple(n for n, b in layout.split(bound).items() if b.any())
         if not finite:
             codes = np.full(p, 3)
         codes = np.where((codes != 3) & bound, 1, codes)  # the more specific reason
         se = np.where(codes == 0, se, np.nan)
         stderr = layout.split(se)
     converged = bool(ok) and not (codes == 3).any()
-    bound_names = tuple(n for n, tr in zip(free, layout.transforms, strict=True)
-                        if at_bound(tr, params[n]).any())
     notes = {k: v for k, v in layout.split(stderr_notes(codes)).items() if (v != "").any()}
     try:
         fitted = source.build({k: jnp.asarray(v) for k, v in params.items()})
