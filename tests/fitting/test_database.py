@@ -12,6 +12,7 @@ import time
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _helpers import random_dirs
 
 from brdf_fit import io, registry
 from brdf_fit.cli import main
@@ -22,13 +23,6 @@ from brdf_fit.fitting.errors import ERRORS, errors_of_values, measure_weights
 MODELS = ("ggx", "lambert")
 
 
-def _dirs(rng, n):
-    mu = rng.uniform(0.05, 1.0, n)
-    phi = rng.uniform(0, 2 * np.pi, n)
-    s = np.sqrt(1 - mu * mu)
-    return np.stack([s * np.cos(phi), s * np.sin(phi), mu], -1)
-
-
 @pytest.fixture(scope="module")
 def folder(tmp_path_factory):
     """Three small materials (GGX with 2% noise) as .npz files."""
@@ -36,7 +30,7 @@ def folder(tmp_path_factory):
     rng = np.random.default_rng(11)
     for i, (a, f0) in enumerate([(0.1, [0.9, 0.6, 0.3]), (0.3, [0.5, 0.5, 0.5]),
                                  (0.2, [0.95, 0.8, 0.5])]):
-        wi, wo = _dirs(rng, 200), _dirs(rng, 200)
+        wi, wo = random_dirs(rng, 200, 0.05), random_dirs(rng, 200, 0.05)
         m = registry.get("ggx").build(alpha=np.array(a), f0=np.array(f0))
         v = np.asarray(m.eval(jnp.asarray(wi), jnp.asarray(wo)))
         v = v * np.exp(0.02 * rng.standard_normal(v.shape))

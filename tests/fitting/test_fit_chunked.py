@@ -10,7 +10,7 @@ import sys
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from _helpers import PEAK_RSS_CODE, peak_kib
+from _helpers import PEAK_RSS_CODE, peak_kib, random_dirs
 
 from brdf_fit import registry
 from brdf_fit.data import GonioData
@@ -29,13 +29,7 @@ START = {"alpha": 0.5, "f0": [0.5, 0.5, 0.5]}
 def _data(noise: float, sigma: bool, seed: int = 3):
     rng = np.random.default_rng(seed)
 
-    def dirs(n):
-        mu = rng.uniform(0.05, 1.0, n)
-        phi = rng.uniform(0, 2 * np.pi, n)
-        s = np.sqrt(1 - mu * mu)
-        return np.stack([s * np.cos(phi), s * np.sin(phi), mu], -1)
-
-    wi, wo = dirs(N_SAMPLES), dirs(N_SAMPLES)
+    wi, wo = random_dirs(rng, N_SAMPLES, 0.05), random_dirs(rng, N_SAMPLES, 0.05)
     m = registry.get("ggx").build(**TRUTH)
     v = np.asarray(m.eval(jnp.asarray(wi), jnp.asarray(wo)))
     v = v * np.exp(noise * rng.standard_normal(v.shape))

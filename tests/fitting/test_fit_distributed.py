@@ -232,19 +232,13 @@ def test_value_array_geometry_is_normalised(tmp_path, capsys):
     import json
 
     import jax.numpy as jnp
+    from _helpers import random_dirs
 
     from brdf_fit import registry
     from brdf_fit.cli import main
 
     rng = np.random.default_rng(4)
-
-    def dirs(n):
-        mu = rng.uniform(0.2, 1.0, n)
-        phi = rng.uniform(0, 2 * np.pi, n)
-        s = np.sqrt(1 - mu * mu)
-        return np.stack([s * np.cos(phi), s * np.sin(phi), mu], -1)
-
-    wi, wo = dirs(48), dirs(48)
+    wi, wo = random_dirs(rng, 48, 0.2), random_dirs(rng, 48, 0.2)
     f = np.asarray(registry.get("ggx").build(alpha=np.array(0.2), f0=np.array([0.9, 0.6, 0.3]))
                    .eval(jnp.asarray(wi), jnp.asarray(wo)))
     np.save(tmp_path / "v.npy", np.stack([f, f]))
