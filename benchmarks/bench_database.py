@@ -30,6 +30,8 @@ import sys
 import tempfile
 import time
 
+from bench_merl_fit import render  # Mitsuba's BSDFs at every MERL bin centre
+
 HERE = os.path.dirname(os.path.abspath(__file__))
 RESULTS = os.path.join(HERE, "results")
 MODELS = ("ggx", "beckmann", "ggx-plastic", "ward", "lambert")
@@ -57,28 +59,6 @@ MATERIALS = [
                           "diffuse_reflectance": {"type": "rgb", "value": [0.2, 0.2, 0.2]}}),
 ]
 
-RENDER = """
-import json, sys
-import numpy as np
-import mitsuba as mi
-import drjit as dr
-from brdf_fit.io.merl import write_merl
-mi.set_variant("llvm_ad_rgb")
-folder, materials = sys.argv[1], json.loads(sys.argv[2])
-for name, d in materials:
-    bsdf = mi.load_dict(d)
-
-    def f(wi, wo):
-        si = dr.zeros(mi.SurfaceInteraction3f, wi.shape[0])
-        si.wi = mi.Vector3f(wo[:, 0], wo[:, 1], wo[:, 2])
-        si.sh_frame = mi.Frame3f(mi.Vector3f(0, 0, 1))
-        v = bsdf.eval(mi.BSDFContext(), si, mi.Vector3f(wi[:, 0], wi[:, 1], wi[:, 2]))
-        return np.stack([np.asarray(v[c]) for c in range(3)], -1) / wi[:, 2:3]
-
-    write_merl(f"{folder}/{name}.binary", f, chunk=1 << 21)
-"""
-
-
 def run(folder: str, table: str, cache: str, processes: int | None) -> dict:
     cmd = [sys.executable, "-m", "brdf_fit.cli", "fit", folder, "--model", ",".join(MODELS),
            "--table", table, "--json", "--quiet"]
@@ -99,7 +79,7 @@ def main() -> None:
     try:
         data = os.path.join(tmp, "merl")
         os.makedirs(data)
-        subprocess.run([sys.executable, "-c", RENDER, data, json.dumps(MATERIALS)], check=True)
+        render(data, MATERIALS)
         one = run(data, os.path.join(tmp, "one.csv"), os.path.join(tmp, "cache1"), None)
         two = run(data, os.path.join(tmp, "two.csv"), os.path.join(tmp, "cache2"), 2)
         if os.path.exists(os.path.join(tmp, "one.png")):

@@ -66,26 +66,39 @@ OURS = PEAK + ("import sys\n"
                "sys.exit(status)\n")
 
 
-#: the child process that renders the file with Mitsuba (argv: output path)
+#: the child process that renders MERL files with Mitsuba (argv: folder, JSON list of
+#: [name, BSDF dict]): each BSDF's ``eval`` at every bin centre, written as ``folder/name.binary``
+#: (bench_database.py renders its ten files with it too)
 RENDER = f"""
-import sys
+import json, sys
 import numpy as np
 import mitsuba as mi
 import drjit as dr
 from brdf_fit.io.merl import write_merl
 mi.set_variant({VARIANT!r})
-bsdf = mi.load_dict({{"type": "roughconductor", "distribution": "ggx", "alpha": {ALPHA},
-                      "material": "Cu"}})
+folder, materials = sys.argv[1], json.loads(sys.argv[2])
+for name, d in materials:
+    bsdf = mi.load_dict(d)
 
-def f(wi, wo):
-    si = dr.zeros(mi.SurfaceInteraction3f, wi.shape[0])
-    si.wi = mi.Vector3f(wo[:, 0], wo[:, 1], wo[:, 2])
-    si.sh_frame = mi.Frame3f(mi.Vector3f(0, 0, 1))
-    v = bsdf.eval(mi.BSDFContext(), si, mi.Vector3f(wi[:, 0], wi[:, 1], wi[:, 2]))
-    return np.stack([np.asarray(v[c]) for c in range(3)], -1) / wi[:, 2:3]
+    def f(wi, wo):
+        si = dr.zeros(mi.SurfaceInteraction3f, wi.shape[0])
+        si.wi = mi.Vector3f(wo[:, 0], wo[:, 1], wo[:, 2])
+        si.sh_frame = mi.Frame3f(mi.Vector3f(0, 0, 1))
+        v = bsdf.eval(mi.BSDFContext(), si, mi.Vector3f(wi[:, 0], wi[:, 1], wi[:, 2]))
+        return np.stack([np.asarray(v[c]) for c in range(3)], -1) / wi[:, 2:3]
 
-write_merl(sys.argv[1], f, chunk=1 << 21)
+    write_merl(f"{{folder}}/{{name}}.binary", f, chunk=1 << 21)
 """
+#: the material of this benchmark's file
+MATERIAL = ("mitsuba_cu_ggx_0.12", {"type": "roughconductor", "distribution": "ggx",
+                                    "alpha": ALPHA, "material": "Cu"})
+
+
+def render(folder: str, materials) -> None:
+    """Write ``folder/NAME.binary`` for each ``(NAME, Mitsuba BSDF dict)`` (:data:`RENDER`)."""
+    subprocess.run([sys.executable, "-c", RENDER, folder, json.dumps(list(materials))],
+                   check=True)
+
 
 #: the child that fits with Mitsuba + Adam (argv: MERL path); prints one JSON line
 ADAM = PEAK + f"""
@@ -197,8 +210,8 @@ def run_adam(path: str) -> dict:
 
 def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
-        path = os.path.join(tmp, "mitsuba_cu_ggx_0.12.binary")
-        subprocess.run([sys.executable, "-c", RENDER, path], check=True)
+        render(tmp, [MATERIAL])
+        path = os.path.join(tmp, MATERIAL[0] + ".binary")
         cache = os.path.join(tmp, "cache")
         cold = run_ours(path, cache)
         warm = run_ours(path, cache)
