@@ -71,14 +71,14 @@ def _positive_float(text: str) -> float:
 
 
 def _size(text: str) -> str:
-    """A memory size as ``--max-memory`` takes it (checked here, kept as text for the
-    environment)."""
-    import re
+    """A memory size as ``--max-memory`` takes it: checked by the rule that reads it back
+    (:func:`brdf_fit.core.limits.parse_size`), kept as text for the environment."""
+    from brdf_fit.core.limits import LimitError, parse_size
 
-    if not re.fullmatch(r"\s*[0-9]*\.?[0-9]+\s*[KMGTkmgt]?(?:[iI]?[bB])?\s*", text) or not any(
-            c.isdigit() and c != "0" for c in text):
-        raise argparse.ArgumentTypeError(f"{text!r} is not a size (e.g. 8G, 500M or a number "
-                                         "of bytes)")
+    try:
+        parse_size(text)
+    except LimitError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
     return text.strip()
 
 
