@@ -31,6 +31,7 @@ import numpy as np
 
 from brdf_fit import plot, registry
 from brdf_fit.convert import phong as cp
+from brdf_fit.core.atomic import write_bytes_atomic, write_text_atomic
 from brdf_fit.fitting.problem import UNDETERMINED_RULE
 from brdf_fit.fitting.single import fit
 from brdf_fit.selection import select
@@ -121,8 +122,10 @@ def _selection_plot(selection) -> dict[str, bytes]:
 
 def run_demo(out_dir, plots: bool = True, progress: bool = True) -> dict:
     """The main job: synthesise, fit every model of :data:`DEMO_FITS`, rank, convert, check, write
-    ``demo.json`` (and plots) into ``out_dir``. Returns the JSON document."""
-    jax.config.update("jax_enable_x64", True)  # fitting runs in float64 (see brdf_fit.cli._x64)
+    ``demo.json`` (and plots) into ``out_dir``. Returns the JSON document; a file that could not
+    be written is named in its ``write_error`` (the document is complete all the same)."""
+    # fitting runs in float64 (see brdf_fit.cli._common.use_x64)
+    jax.config.update("jax_enable_x64", True)
     t0 = time.perf_counter()
 
     def note(msg):
@@ -208,16 +211,29 @@ def run_demo(out_dir, plots: bool = True, progress: bool = True) -> dict:
     path = out_dir / "demo.json"
     doc["output"] = str(path)
 
-    def write():
+    def write() -> bool:
+        """demo.json, whole or not at all; a failure is kept in the document (``write_error``),
+        which the caller still has: nothing computed is lost to a full disk."""
         doc["seconds"] = round(time.perf_counter() - t0, 2)
-        path.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+        try:
+            write_text_atomic(path, json.dumps(doc, indent=2) + "\n")
+        except OSError as e:
+            doc["write_error"] = f"{path}: cannot write ({e.strerror or e})"
+            return False
+        return True
 
-    write()  # the results are on disk before any plot file is written
+    wrote = write()  # the results are on disk before any plot file is written
     if drawer is not None:
         drawer.join()
         files = []
         for name, png in pics.items():
-            (out_dir / name).write_bytes(png)
+            if not wrote:
+                break
+            try:
+                write_bytes_atomic(out_dir / name, png)
+            except OSError as e:
+                doc["write_error"] = f"{out_dir / name}: cannot write ({e.strerror or e})"
+                break
             files.append(str(out_dir / name))
         doc["plots"] = files
         if plot_error:
@@ -226,5 +242,6 @@ def run_demo(out_dir, plots: bool = True, progress: bool = True) -> dict:
                                 "complete")
         if doc["plots"]:
             note(f"plots: {', '.join(doc['plots'])}")
-        write()
+        if wrote:
+            write()
     return doc

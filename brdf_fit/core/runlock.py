@@ -40,8 +40,11 @@ def hold(folder):
             holder = os.pread(fd, 64, 0).decode(errors="replace").strip() or "unknown"
             raise FolderBusy(f"{folder}: another run is writing here (process {holder}); wait "
                              "for it, stop it, or choose another folder") from None
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, str(os.getpid()).encode(), 0)
+        try:  # the holder's process id, for the message of a second run (not the lock itself)
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, str(os.getpid()).encode(), 0)
+        except OSError:
+            pass  # a full disk: the lock holds all the same; a second run says "unknown"
         yield
     finally:
         os.close(fd)  # closing the descriptor releases the lock

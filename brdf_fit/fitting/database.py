@@ -51,7 +51,9 @@ COLUMNS = ("material", "model", "converged", "steps", "seconds", "n_samples", "r
 class DatabaseRun:
     """What :func:`fit_database` did: the rows of every finished pair (in table order, missing
     pairs left out), how many were fitted now, found finished, and failed (a file that could not
-    be read or a fit that raised; each with its message in ``failures``)."""
+    be read or a fit that raised; each with its message in ``failures``). ``unsaved``: the
+    pairs fitted now whose part could not be written (a full disk: each with the reason); their
+    rows are in ``rows`` all the same, but a later run fits them again."""
 
     rows: list[dict]
     fitted_now: int
@@ -59,6 +61,7 @@ class DatabaseRun:
     failed: int
     failures: list[str]
     total: int
+    unsaved: list[str] = dataclasses.field(default_factory=list)
 
 
 def _material_names(paths: Sequence[str]) -> list[str]:
@@ -122,6 +125,8 @@ def fit_database(paths: Sequence[str], models: Sequence[str], folder: str, *,
     done_now = already = failed = 0
     failures: list[str] = []
     cache: dict[str, GonioData | Exception] = {}
+    kept_here: dict[str, dict] = {}  # rows whose part could not be written (see unsaved)
+    unsaved: list[str] = []
 
     def part_path(path, model):
         return os.path.join(folder, _pair_key(path, model, ident) + ".json")
@@ -151,7 +156,11 @@ def fit_database(paths: Sequence[str], models: Sequence[str], folder: str, *,
                 failures.append(f"{material} {model}: {e}")
                 text = f"{material} {model}: FAILED ({e})"
             else:
-                write_text_atomic(target, json.dumps(row))
+                try:
+                    write_text_atomic(target, json.dumps(row))
+                except OSError as e:  # a full disk: the row is kept in memory, reported
+                    kept_here[target] = row
+                    unsaved.append(f"{material} {model}: {e.strerror or e}")
                 done_now += 1
                 text = (f"{material} {model}: rel. RMS {row['errors']['rel_rms']:.4g}, "
                         f"{'converged' if row['converged'] else 'NOT converged'}, "
@@ -164,8 +173,10 @@ def fit_database(paths: Sequence[str], models: Sequence[str], folder: str, *,
         if os.path.exists(target):
             with open(target, encoding="utf-8") as fh:
                 rows.append(json.load(fh))
+        elif target in kept_here:
+            rows.append(kept_here[target])
     return DatabaseRun(rows=rows, fitted_now=done_now, already_done=already, failed=failed,
-                       failures=failures, total=len(pairs))
+                       failures=failures, total=len(pairs), unsaved=unsaved)
 
 
 def count_finished(paths: Sequence[str], models: Sequence[str], folder: str,

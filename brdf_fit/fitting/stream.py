@@ -65,6 +65,7 @@ from typing import Any
 
 import numpy as np
 
+from brdf_fit.core.atomic import TEMP_MARK, atomic_path
 from brdf_fit.fitting.batch import BatchFitResult, fit_batch
 from brdf_fit.fitting.problem import FitError, model_source
 
@@ -246,16 +247,12 @@ def _json_safe(x):
 
 
 def _write_atomic(path: Path, write) -> None:
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        with open(tmp, "wb") as fh:
-            write(fh)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    """``write(fh)`` into a temporary file beside ``path``, flushed to disk, renamed into place
+    (:func:`brdf_fit.core.atomic.atomic_path`)."""
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        write(fh)
+        fh.flush()
+        os.fsync(fh.fileno())
 
 
 def _slicer(name, a, n, per_problem_ndim, m):
@@ -397,7 +394,7 @@ def fit_stream(values, model, out=None, *, wi=None, wo=None, weight=None, sigma=
             raise FitError(f"{out}: holds block files but no {MANIFEST}; choose a new folder")
         path.mkdir(exist_ok=True)
         if count == 1 or sync is not None:  # no other process is writing yet
-            for stale in path.glob(".block_*.tmp-*"):
+            for stale in path.glob(f".block_*{TEMP_MARK}*"):
                 stale.unlink()
         if not mpath.exists():
             _write_atomic(mpath, lambda fh: fh.write(json.dumps(manifest, indent=1).encode()))

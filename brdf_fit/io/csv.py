@@ -44,6 +44,7 @@ import re
 
 import numpy as np
 
+from brdf_fit.core.atomic import write_text_atomic
 from brdf_fit.data import DataError, GonioData, channel_wavelengths
 
 __all__ = ["read_csv", "write_csv", "QUANTITIES"]
@@ -393,5 +394,4 @@ def write_csv(data: GonioData, path, angles: str = "deg", quantity: str = "brdf"
     out.append(",".join(names))
     table = np.stack(cols, -1)
     out.extend(",".join(_fmt(x) for x in row) for row in table)
-    with open(os.fspath(path), "w", encoding="utf-8") as fh:
-        fh.write("\n".join(out) + "\n")
+    write_text_atomic(path, "\n".join(out) + "\n")

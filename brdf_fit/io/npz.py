@@ -27,6 +27,7 @@ import zipfile
 import numpy as np
 
 from brdf_fit._version import __version__
+from brdf_fit.core.atomic import atomic_path, write_text_atomic
 from brdf_fit.core.limits import LimitError, check_bytes
 from brdf_fit.data import DataError, GonioData
 
@@ -88,7 +89,8 @@ def write_npz(data: GonioData, path, provenance: dict | None = None) -> tuple[st
     if data.sigma is not None:
         arrays["sigma"] = data.sigma
     arrays = {k: np.ascontiguousarray(v, dtype="<f8") for k, v in arrays.items()}
-    np.savez_compressed(npz, **arrays)
+    with atomic_path(npz) as tmp:  # (its name ends in .npz: numpy adds no suffix)
+        np.savez_compressed(tmp, **arrays)
     doc = {
         "schema": SCHEMA,
         "schema_version": SCHEMA_VERSION,
@@ -101,7 +103,7 @@ def write_npz(data: GonioData, path, provenance: dict | None = None) -> tuple[st
         "metadata": metadata,
         "provenance": prov,
     }
-    side.write_text(json.dumps(doc, indent=2, sort_keys=True) + "\n", encoding="utf-8")
+    write_text_atomic(side, json.dumps(doc, indent=2, sort_keys=True) + "\n")
     return str(npz), str(side)
 
 

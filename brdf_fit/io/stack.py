@@ -46,11 +46,11 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import os
 import pathlib
 
 import numpy as np
 
+from brdf_fit.core.atomic import atomic_path
 from brdf_fit.data import DataError
 from brdf_fit.io.csv import QUANTITIES
 
@@ -122,6 +122,20 @@ def _read_image(path: pathlib.Path, channels) -> tuple[np.ndarray, tuple[str, ..
     if missing:
         raise _err(path, f"no channel {missing[0]!r} (it has {', '.join(names)})")
     return a[..., [names.index(c) for c in channels]], tuple(channels)
+
+
+def _refuse_negative(path, px: np.ndarray) -> None:
+    """Refuse an image (H, W, C) with a negative pixel value, naming the file, how many and the
+    first (x, y): a reflectance is >= 0, and a negative one made every fit of its texel fail
+    with nothing saying why (issue 45). Non-finite pixels are not refused: they mark texels
+    not measured in that image (masked out of the fit)."""
+    neg = px < 0  # NaN compares False: not counted
+    k = int(np.count_nonzero(neg))
+    if k:
+        y, x, c = (int(i) for i in np.argwhere(neg)[0])
+        raise _err(path, f"{k:,} negative pixel value(s), the first at x={x}, y={y}, channel "
+                   f"{c} ({float(px[y, x, c])!r}); reflectance values are >= 0 (non-finite "
+                   "pixels are taken as not measured)")
 
 
 def _direction(where, img: dict, which: str) -> np.ndarray:
@@ -215,23 +229,19 @@ class ImageStack:
             dtype = np.float64
         if marker.exists():
             marker.unlink()
-        tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-        try:
+        with atomic_path(path) as tmp:
             mm = np.lib.format.open_memmap(tmp, mode="w+", dtype=dtype, shape=(M, N, C))
             for j, f in enumerate(self.files):
                 px, _ = _read_image(f, self.channels)
                 if px.shape[:2] != self.shape:
                     raise _err(f, f"size {px.shape[1]}x{px.shape[0]}, the stack's first image is "
                                f"{self.shape[1]}x{self.shape[0]}")
+                _refuse_negative(f, px)
                 mm[j] = px.reshape(N, C).astype(np.float64) * self.to_brdf[j]
                 if progress is not None:
                     progress(j + 1, M)
             mm.flush()
             del mm
-            os.replace(tmp, path)
-        finally:
-            if tmp.exists():
-                tmp.unlink()
         marker.write_text(mark)
         return np.moveaxis(np.load(path, mmap_mode="r"), 0, 1)
 
@@ -302,6 +312,8 @@ def read_stack(path) -> ImageStack:
         if f.suffix.lower() not in IMAGE_EXTENSIONS:
             raise _err(where, f"{img['file']}: images are {' or '.join(IMAGE_EXTENSIONS)} "
                        "(linear values; 8-bit images are not measurements)")
+        if f.is_dir():
+            raise _err(where, f"{img['file']}: a folder, not an image file")
         if not f.is_file():
             raise _err(where, f"{img['file']}: no such file")
         files.append(f)
@@ -387,21 +399,14 @@ def write_maps(folder, maps: dict[str, np.ndarray], *, exr: bool = False,
     written = []
     for name, a in maps.items():
         a = np.asarray(a)
-        tmp = folder / f".{name}.npy.tmp-{os.getpid()}"
-        with open(tmp, "wb") as fh:
+        with atomic_path(folder / f"{name}.npy") as tmp, open(tmp, "wb") as fh:
             np.save(fh, a)
-        os.replace(tmp, folder / f"{name}.npy")
         written.append(folder / f"{name}.npy")
         if exr:
             from brdf_fit.io.exr import write_exr
 
             img = a.astype(np.float32).reshape(*a.shape[:2], -1)  # booleans as 0 / 1
-            tmp = folder / f".{name}.exr.tmp-{os.getpid()}.exr"
-            try:
+            with atomic_path(folder / f"{name}.exr") as tmp:
                 write_exr(tmp, img, [str(k) for k in range(img.shape[2])], attributes)
-                os.replace(tmp, folder / f"{name}.exr")
-            finally:
-                if tmp.exists():
-                    tmp.unlink()
             written.append(folder / f"{name}.exr")
     return written

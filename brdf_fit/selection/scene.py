@@ -59,6 +59,7 @@ from brdf_fit import io, registry
 from brdf_fit.convert import gltf as cgltf
 from brdf_fit.convert import mtl as cmtl
 from brdf_fit.convert.phong_to_ggx import geometry as lobe_geometry
+from brdf_fit.core.atomic import write_text_atomic
 from brdf_fit.core.validate import ParameterError
 from brdf_fit.data import DataError, GonioData
 from brdf_fit.fitting.problem import FitError
@@ -560,7 +561,6 @@ def export_scene(result: SceneSelection, gltf_path=None, mitsuba_path=None) -> l
             [(c.material.name, e.scene_dict) for c, e in done],
             comment=(f"brdf_fit select, scene {os.path.basename(result.scene.path)}: one bsdf "
                      "per material (alpha, not roughness)"))
-        with open(mitsuba_path, "w", encoding="utf-8") as fh:
-            fh.write(text)
+        write_text_atomic(mitsuba_path, text)
         written.append(str(mitsuba_path))
     return written

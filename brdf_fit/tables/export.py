@@ -65,18 +65,17 @@ are optional: ``pip install 'brdf_fit[tables]'``; they are imported only when ne
 
 from __future__ import annotations
 
-import contextlib
 import io
 import json
 import math
 import os
 import pathlib
 import re
-import tempfile
 
 import numpy as np
 
 from brdf_fit._version import __version__
+from brdf_fit.core.atomic import atomic_path
 from brdf_fit.core.table import (
     TABLE_FORMAT,
     TABLE_FORMAT_VERSION,
@@ -198,29 +197,6 @@ def _format_of(path: pathlib.Path, fmt: str | None) -> str:
         raise ValueError(f"{path}: unknown extension {path.suffix!r}; use one of "
                          f"{', '.join('.' + f for f in FORMATS)} (or pass fmt=)")
     return f
-
-
-def _umask() -> int:
-    """The process's umask (read by setting it and restoring it at once)."""
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
-
-
-@contextlib.contextmanager
-def _atomic(path: pathlib.Path):
-    """Yield a temporary path next to ``path``; rename it onto ``path`` on success."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        yield tmp
-        # mkstemp creates the file -rw------- (issue 28: tables were written that way); a
-        # table is an output like any other, so it gets the user's umask, as open() would
-        os.chmod(tmp, 0o666 & ~_umask())
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
 
 
 # --------------------------------------------------------------------------------------------
@@ -402,10 +378,10 @@ def _write_npz(table: Table, values: np.ndarray, path: pathlib.Path) -> list[pat
     text = _dumps(desc)
     arrays["meta_json"] = np.array(text)
     side = sidecar_path(path)
-    with _atomic(path) as tmp:
+    with atomic_path(path) as tmp:
         with open(tmp, "wb") as fh:
             np.savez(fh, **arrays)
-        with _atomic(side) as tmp_side:
+        with atomic_path(side) as tmp_side:
             with open(tmp_side, "w", encoding="utf-8") as fh:
                 fh.write(json.dumps(desc, sort_keys=True, indent=2, allow_nan=False) + "\n")
     return [path, side]
@@ -436,7 +412,7 @@ def _write_exr(table: Table, values: np.ndarray, path: pathlib.Path, half: bool
     names = _exr_names(table.channels)
     desc = _descriptor(table, values, image_origin=origin, pixel_type="HALF" if half else "FLOAT",
                        exr_channels=dict(zip(table.channels, names, strict=True)))
-    with _atomic(path) as tmp:
+    with atomic_path(path) as tmp:
         write_exr(tmp, image, names, {_EXR_ATTRIBUTE: _dumps(desc)}, half=half)
     return [path]
 
@@ -479,7 +455,7 @@ def _write_png(table: Table, values: np.ndarray, path: pathlib.Path) -> list[pat
     chunks = list(png.Reader(bytes=buf.getvalue()).chunks())
     text = _PNG_KEYWORD + b"\x00" + _dumps(desc).encode("latin-1")  # PNG tEXt: keyword NUL text
     chunks.insert(1, (b"tEXt", text))  # right after IHDR, before IDAT
-    with _atomic(path) as tmp:
+    with atomic_path(path) as tmp:
         with open(tmp, "wb") as fh:
             png.write_chunks(fh, chunks)
     return [path]
@@ -590,7 +566,7 @@ def _write_h(table: Table, values: np.ndarray, path: pathlib.Path) -> list[pathl
         f"#endif  // {NAME}_H",
         "",
     ]
-    with _atomic(path) as tmp:
+    with atomic_path(path) as tmp:
         with open(tmp, "w", encoding="ascii", newline="\n") as fh:
             fh.write("\n".join(lines))
     return [path]

@@ -38,6 +38,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from brdf_fit import registry
+from brdf_fit.core.atomic import write_text_atomic
 
 __all__ = ["CatalogueRow", "MONTES_URENA", "table", "markdown", "update_readme", "COST_FILE"]
 
@@ -237,7 +238,7 @@ def update_readme(path: Path | str, text: str | None = None) -> bool:
     b = doc.index(README_END)
     new = doc[:a] + "\n" + text + doc[b:]
     if new != doc:
-        p.write_text(new)
+        write_text_atomic(p, new)
         return True
     return False
 

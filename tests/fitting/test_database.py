@@ -199,7 +199,7 @@ def test_processes_and_a_killed_run(folder, tmp_path):
     proc.send_signal(signal.SIGKILL)
     proc.wait()
     kept = len(list(parts.glob("*.json")))
-    assert 1 <= kept < 6 and not list(parts.glob(".tmp-*"))
+    assert 1 <= kept < 6 and not list(parts.glob(".*.tmp*"))
     out = subprocess.run([*base, "--table", str(killed), "--json"], capture_output=True,
                          text=True, env=env, timeout=600)
     doc = json.loads(out.stdout)

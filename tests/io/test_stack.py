@@ -78,6 +78,7 @@ def _good(tmp_path):
     np.save(tmp_path / "b.npy", np.ones((2, 3, 3)))
     np.save(tmp_path / "small.npy", np.ones((2, 2, 3)))
     np.save(tmp_path / "grey.npy", np.ones((2, 3)))
+    (tmp_path / "folder.npy").mkdir()
     return {"format": "brdf_fit.image_stack/1",
             "images": [{"file": "a.npy", "wi": [0, 0, 1], "wo": [0, 0, 1]},
                        {"file": "b.npy", "wi": [0, 0.6, 0.8], "wo": [0, 0, 1]}]}
@@ -90,6 +91,9 @@ def _good(tmp_path):
     (lambda d: d.update(quantity="radiance"), "quantity 'radiance'"),
     (lambda d: d.update(scale=-1), "scale must be a positive number"),
     (lambda d: d["images"][1].update(file="c.npy"), "image 1: c.npy: no such file"),
+    # a folder where an image is expected is named as such, not "no such file" (issue 45)
+    (lambda d: d["images"][1].update(file="folder.npy"),
+     "image 1: folder.npy: a folder, not an image file"),
     (lambda d: d["images"][1].update(file="c.png"), "8-bit images are not measurements"),
     (lambda d: d["images"][1].update(wi=[0, 0, -1]), "image 1: wi = [0.0, 0.0, -1.0] is below"),
     (lambda d: d["images"][1].update(wi=[0, 0, 0]), "zero length"),
@@ -212,3 +216,32 @@ def test_bad_image_requests(tmp_path, capsys, monkeypatch, argv, fragment):
     names = {"S": str(path), "G": "G.npz"}
     rc = main(["fit-batch", "--model", "lambert", *[names.get(a, a) for a in argv]])
     assert rc == 2 and fragment in capsys.readouterr().err
+
+
+def test_negative_pixels_are_refused_by_file_count_and_place(tmp_path, capsys):
+    """A negative pixel is no reflectance: the stack's values are refused, naming the image,
+    how many and the first pixel (x, y, channel), as negative values are in every other input;
+    through the command line a one-line error, exit status 2, and no values file left. A NaN
+    pixel is not refused: it marks a texel not measured in that image (issue 45: negative
+    pixels were accepted, and every fit of those texels failed with nothing saying why)."""
+    from brdf_fit.cli import main
+
+    images = np.full((3, 2, 4, 3), 0.5)
+    images[1, 0, 2, 1] = np.nan  # not measured: allowed
+    images[2, 1, 3, 0] = -0.25
+    images[2, 1, 1, 2] = -1.0
+    path = write_stack(tmp_path, images, *_dirs(3), fmt="npy", name="S.json")
+    st = read_stack(path)
+    with pytest.raises(DataError) as e:
+        st.to_values(tmp_path / "v.npy")
+    msg = str(e.value)
+    assert "2 negative pixel value(s), the first at x=1, y=1, channel 2 (-1.0)" in msg, msg
+    assert msg.startswith(str(st.files[2])), msg
+    assert not list(tmp_path.glob("*v.npy*"))  # the partial values file is removed
+    rc = main(["fit-batch", "--model", "lambert", "--images", str(path), "--out-dir",
+               str(tmp_path / "out"), "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1 and "negative pixel value(s)" in err, err
+    images[2] = np.abs(images[2])
+    path = write_stack(tmp_path, images, *_dirs(3), fmt="npy", name="S.json")
+    assert read_stack(path).to_values(tmp_path / "v.npy").shape == (8, 3, 3)
