@@ -301,7 +301,8 @@ def test_fit_batch_passes_one_geometry_when_every_file_has_it(csv_data, tmp_path
     as one (M, 3) geometry (kept once, the shared-geometry guess); any difference, per-file."""
     import dataclasses
 
-    from brdf_fit.cli import _geometry, read_data
+    from brdf_fit.cli import read_data
+    from brdf_fit.cli._batch_rows import batch_geometry as _geometry
 
     d = read_data(str(csv_data))
     wi, wo = _geometry([d, d, d])
@@ -376,4 +377,4 @@ def test_json_answers_on_failure_and_a_failed_export_keeps_the_fit(csv_data, tmp
     np.testing.assert_allclose(doc["params"]["alpha"], TRUTH["alpha"], rtol=1e-6)
     assert "f.xml: cannot write" in captured.err and "Traceback" not in captured.err
     assert not target.exists()
-    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".tmp-")]
+    assert not [p for p in tmp_path.iterdir() if ".tmp" in p.name]  # no temporary left

@@ -2,7 +2,7 @@
 (the 3-sample member of the batch fault test converges with small errors; only its sample count
 gives it away)."""
 
-from brdf_fit.cli import _flag_rows
+from brdf_fit.cli._batch_rows import flag_rows as _flag_rows
 
 
 def row(rms, n=300, converged=True, at_bound=()):

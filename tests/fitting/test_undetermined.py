@@ -58,7 +58,7 @@ def test_demo_gold_flags_red_eta_and_k(gold_fit):
 
 
 def test_fit_output_names_them(gold_fit, capsys):
-    from brdf_fit.cli import _print_fit
+    from brdf_fit.cli.fit import _print_fit
 
     data, r = gold_fit
     _print_fit(r, data, "gold.csv")
@@ -71,7 +71,8 @@ def test_fit_output_names_them(gold_fit, capsys):
 
 def test_batch_rows_and_flags():
     """fit_batch's result flags per problem; the CLI rows name the entries and add a flag."""
-    from brdf_fit.cli import _batch_rows, _flag_rows
+    from brdf_fit.cli._batch_rows import batch_rows as _batch_rows
+    from brdf_fit.cli._batch_rows import flag_rows as _flag_rows
     from brdf_fit.fitting.batch import BatchFitResult
 
     B = 2

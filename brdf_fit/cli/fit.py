@@ -1,0 +1,192 @@
+"""``brdf-fit fit``: one file fitted to one model (several files or models, ``--table``,
+are a database run: :mod:`brdf_fit.cli.fit_database`)."""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+
+import numpy as np
+
+from brdf_fit.cli._common import (
+    CLIError,
+    Outputs,
+    add_fit_options,
+    check_names,
+    load_registry,
+    parse_params,
+    positive_float,
+    positive_int,
+    read_data,
+    use_x64,
+)
+from brdf_fit.cli._export import export_kind, target_entry, write_export
+from brdf_fit.cli._progress import StepProgress
+from brdf_fit.cli.check import print_check_table
+from brdf_fit.cli.fit_database import run_database
+
+#: seconds after which `brdf-fit fit` stops a large (chunked) fit that has not converged
+FIT_TIME_LIMIT = 60.0
+
+
+def param_rows(result, channels) -> list[str]:
+    """One line per parameter (per channel for channel parameters): value +- standard error."""
+    rows = []
+    for name, value in result.params.items():
+        v = np.atleast_1d(np.asarray(value, float))
+        se = result.stderr.get(name)
+        se = None if se is None else np.atleast_1d(np.asarray(se, float))
+        note = getattr(result, "stderr_note", {}).get(name)
+        note = None if note is None else np.atleast_1d(np.asarray(note, object))
+        flagged = set(getattr(result, "undetermined", ()))
+        for j, x in enumerate(v):
+            label = name if v.size == 1 else (
+                f"{name}[{channels[j]}]" if len(channels) == v.size else f"{name}[{j}]")
+            why = str(note[j]) if note is not None and note.size == v.size else ""
+            err = "(fixed)" if name in result.fixed else (
+                "" if se is None else
+                f"stderr undefined: {why or 'not finite'}" if not np.isfinite(se[j]) else
+                f"+- {se[j]:.3g}" + ("  UNDETERMINED" if label in flagged else ""))
+            rows.append(f"  {label:<16} {x:12.6g}  {err}")
+    return rows
+
+
+def print_undetermined(labels, indent: str = "  ") -> None:
+    """The fit's undetermined entries, with the rule that flags them (or nothing)."""
+    from brdf_fit.fitting.problem import UNDETERMINED_RULE
+
+    if labels:
+        print(f"{indent}undetermined: {', '.join(labels)} ({UNDETERMINED_RULE}; fix them "
+              "(--fix) or measure where they matter)")
+
+
+def _print_fit(result, data, path: str) -> None:
+    print(f"{result.model_name} fitted to {path}: {result.n_samples} samples x "
+          f"{data.n_channels} channel(s) ({','.join(data.channels)}), metric {result.metric}"
+          + (" (residuals in units of sigma)" if data.sigma is not None else ""))
+    print(f"  {'parameter':<16} {'value':>12}  standard error")
+    for row in param_rows(result, data.channels):
+        print(row)
+    if result.at_bound:
+        print(f"  at an interval end: {', '.join(result.at_bound)} (a limit, not an optimum; "
+              "no standard error)")
+    print_undetermined(result.undetermined)
+    status = "yes" if result.converged else f"NO ({result.message})"
+    print(f"converged: {status}; steps: {result.steps}; starts: {result.starts}; "
+          f"residual rms: {result.residual_rms:.6g}; time: {result.seconds:.2f} s")
+    if result.checks:
+        print()
+        print_check_table(result.checks)
+
+
+def run(args) -> int:
+    use_x64()
+    models = [m.strip() for m in args.model.split(",") if m.strip()]
+    if len(args.data) > 1 or len(models) > 1 or args.table is not None or args.shard:
+        return run_database(args, models)
+    if args.processes is not None:
+        raise CLIError("--processes shares a database run (several files or models, --table)")
+    args.data = args.data[0]
+    from brdf_fit.fitting.single import fit
+
+    reg = load_registry()
+    entry = target_entry(reg, args.model, args.target)  # fails before the data are read
+    kind = export_kind(args.export, args.target)
+    fix = parse_params(args.fix, entry, "--fix")
+    init = parse_params(args.init, entry, "--init")
+    both = sorted(set(fix) & set(init))
+    if both:
+        raise CLIError(f"parameter(s) {', '.join(both)} given both --fix and --init")
+    checks = check_names(args.check)
+    if args.multistart < 1:
+        raise CLIError(f"--multistart must be >= 1, got {args.multistart}")
+    data = read_data(args.data)
+    if args.max_samples is not None:
+        if args.max_samples < 1:
+            raise CLIError(f"--max-samples must be >= 1, got {args.max_samples}")
+        if data.n > args.max_samples:
+            rng = np.random.default_rng(args.seed)
+            data = data.subset(np.sort(rng.choice(data.n, args.max_samples, replace=False)))
+    if not args.quiet:  # one status line: a first fit spends most of its time compiling
+        print(f"fitting {entry.name} to {data.n} samples x {data.n_channels} channels "
+              f"(metric {args.metric}, {args.multistart} start(s)) ...", file=sys.stderr,
+              flush=True)
+    progress = StepProgress(data.n, enabled=not args.quiet)
+    try:
+        result = fit(data, entry.name, fix=fix, init=init, metric=args.metric,
+                     solver=args.solver, cos_weight=args.cos_weight,
+                     max_zenith_deg=args.max_zenith_deg, multistart=args.multistart,
+                     seed=args.seed, max_steps=args.max_steps, checks=checks, guess=args.guess,
+                     time_limit=args.time_limit, progress=progress)
+    finally:
+        progress.close()
+    exported = []
+    outs = Outputs(note="the fit is printed instead")  # nothing computed is lost to a write
+    if kind is not None:
+        outs.write("--export", args.export, lambda: exported.append(write_export(
+            kind, args.export, entry.name, result.params, data,
+            name=os.path.splitext(os.path.basename(args.data))[0])))
+    exported = exported[0] if exported else None
+    if args.json:
+        doc = result.to_dict()
+        if exported is not None:
+            doc["export"] = exported
+        print(json.dumps(outs.annotate(doc), indent=2))
+    else:
+        _print_fit(result, data, args.data)
+        if exported is not None:
+            err = exported["error"]
+            print(f"export: {exported['target']} {exported['method']} "
+                  + ("(not verified)" if err is None else f"(round-trip error {err:.3g})")
+                  + f": {exported['note']}")
+            print(f"wrote {args.export}")
+    if outs.failed:
+        return outs.status()
+    failed = [c for c in result.checks if not c.ok]
+    return 0 if result.converged and not failed else 1
+
+
+def add_parser(sub) -> None:
+    f = sub.add_parser("fit", help="fit a registry model to measured data (or many files to "
+                                   "several models: --table)")
+    f.add_argument("data", nargs="+",
+                   help="data file: .csv, .npz (or its .json sidecar), MERL .binary; with "
+                        "--table any number of files and folders (a database run)")
+    add_fit_options(f, what="drop", models="registry name (see 'brdf-fit models'); with --table "
+                                        "a comma-separated list")
+    f.add_argument("--solver", default="lm",
+                   help="lm (default), levenberg-marquardt, gauss-newton, gauss-newton-plain, "
+                        "dogleg")
+    f.add_argument("--multistart", type=positive_int, default=1, metavar="K",
+                   help="K starts (the first from --init, the others perturbed); best loss wins")
+    f.add_argument("--seed", type=int, default=0, help="seed of multistart and --max-samples")
+    f.add_argument("--max-samples", type=positive_int, default=None, metavar="N",
+                   help="fit a seeded random subset of N samples (e.g. of a MERL file)")
+    f.add_argument("--time-limit", type=positive_float, default=FIT_TIME_LIMIT, metavar="S",
+                   help="stop a fit of large data (solved in chunks: a whole MERL file) that "
+                        f"has not converged after S seconds, reported as not converged "
+                        f"(default {FIT_TIME_LIMIT:g})")
+    f.add_argument("--check", action="append", metavar="NAME",
+                   help="run this check on the fitted model (repeatable)")
+    f.add_argument("--target", default=None, metavar="T",
+                   help="mitsuba or gltf: fit a model the target holds as fitted (a native "
+                        "entry; a bare plugin name like roughplastic means mitsuba-roughplastic)")
+    f.add_argument("--export", default=None, metavar="OUT",
+                   help="write the fitted model for a renderer: .xml (Mitsuba 3 scene with one "
+                        "bsdf) or .gltf (glTF 2.0 material), checked by round trip on the data")
+    db = f.add_argument_group("a database run (many files x models, one table)")
+    db.add_argument("--table", default=None, metavar="OUT.csv",
+                    help="fit every file to every --model and write the table (CSV, and JSON "
+                         "beside it: parameters, standard errors, rel. RMS and the published "
+                         "error measures, time) and its figure (.png); each finished pair is "
+                         "kept in OUT.csv.parts/, so the same command resumes a stopped run")
+    db.add_argument("--processes", type=positive_int, default=None, metavar="N",
+                    help="share the pairs among N local processes")
+    db.add_argument("--shard", default=None, metavar="I/N",
+                    help="fit only pairs I, I+N, ... (one machine of several on a shared "
+                         "folder; a run without --shard then writes the table)")
+    f.add_argument("--json", action="store_true", help="print FitResult.to_dict() (a database "
+                                                       "run: the table's JSON)")
+    f.add_argument("--quiet", action="store_true", help="no status line on stderr")
+    f.set_defaults(func=run)
