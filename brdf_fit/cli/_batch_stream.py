@@ -13,8 +13,8 @@ from brdf_fit.cli._common import (
 
 
 def check_out_dir(args):
-    """``--out-dir`` as a path, refused before any work when it names a file or its parent
-    folder does not exist."""
+    """``--out-dir`` as a path (the folder created), refused before any work when it names a
+    file, its parent folder does not exist, or it cannot be created."""
     import pathlib
 
     out = pathlib.Path(args.out_dir)
@@ -25,6 +25,14 @@ def check_out_dir(args):
         raise CLIError(f"{args.out_dir}: cannot write: {str(parent)!r} is a file, not a folder")
     if not out.exists() and not parent.is_dir():
         raise CLIError(f"{args.out_dir}: cannot write: folder {str(parent)!r} does not exist")
+    if not out.exists():  # created now, so that a folder that cannot be (under /proc) is refused
+        try:
+            out.mkdir()
+        except FileExistsError:
+            pass  # another process of the run made it
+        except OSError as e:
+            raise CLIError(f"{args.out_dir}: cannot create the folder ({e.strerror or e})"
+                           ) from None
     return out
 
 

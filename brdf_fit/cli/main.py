@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import pathlib
 import sys
 
 from brdf_fit._version import __version__
@@ -139,7 +140,7 @@ def _io_failure(args, exc: OSError) -> int:
     msg = (f"{exc.filename}: {exc.strerror or exc}" if exc.filename is not None
            else " ".join(str(exc).split()))
     out_dir = getattr(args, "out_dir", None)
-    if out_dir:
+    if out_dir and any(pathlib.Path(out_dir).glob("block_*.npz")):
         msg += (f"; the blocks written are kept in {out_dir}: the same command with --resume "
                 "continues")
     print(f"brdf-fit: error: {msg}", file=sys.stderr)

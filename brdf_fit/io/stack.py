@@ -51,6 +51,7 @@ import pathlib
 import numpy as np
 
 from brdf_fit.core.atomic import atomic_path
+from brdf_fit.core.limits import check_bytes
 from brdf_fit.data import DataError
 from brdf_fit.io.csv import QUANTITIES
 
@@ -66,6 +67,11 @@ NORM_MIN = 1e-12
 _KEYS = {"format", "quantity", "scale", "channels", "images", "description"}
 _IMAGE_KEYS = {"file", "wi", "wo", "theta_i", "phi_i", "theta_o", "phi_o"}
 _ANGLES = ("theta_i", "phi_i", "theta_o", "phi_o")
+
+
+#: memory per pixel value while one image is read into the values file: the pixels as read
+#: (up to float64), their float64 copy and its scaled copy (:meth:`ImageStack.to_values`)
+STACK_BYTES_PER_VALUE = 24
 
 
 def _err(where, msg) -> DataError:
@@ -348,6 +354,10 @@ def read_stack(path) -> ImageStack:
         missing = [c for c in channels if c not in n]
         if missing:
             raise _err(f, f"no channel {missing[0]!r} (it has {', '.join(n)})")
+        # an image is read whole, one at a time: its size (from the header, before any pixel
+        # is read) against the memory limit, so that a header claiming 10^5 x 10^5 is refused
+        check_bytes(float(s[0]) * s[1] * len(n) * STACK_BYTES_PER_VALUE,
+                    f"{f}: an image of {s[1]}x{s[0]} x {len(n)} channel(s), read whole")
     return ImageStack(path=path.resolve(), files=tuple(files), wi=wi, wo=wo, to_brdf=factor,
                       shape=tuple(int(x) for x in shape), channels=channels, quantity=quantity,
                       scale=scale)

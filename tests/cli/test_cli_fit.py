@@ -345,6 +345,15 @@ def test_fit_batch_streamed_out_dir_and_resume(csv_data, tmp_path, capsys):
                  "--out-dir", str(tmp_path / "s2"), "--block-size", "2", "--quiet"]) == 2
     one_line_error(capsys, "small.csv", "--out-dir needs every file like")
     assert (tmp_path / "s2" / "block_000000.npz").exists()  # written before the bad file
+    # a folder that cannot be created (under /proc) is refused before any work, by name
+    # (issue 45: it ended in a traceback, then in "the blocks written are kept in /proc/...")
+    assert main(["fit-batch", str(csv_data), "--model", "ggx", "--out-dir", "/proc/none/x",
+                 "--quiet"]) == 2
+    one_line_error(capsys, "/proc/none/x")
+    if pathlib.Path("/proc/self").is_dir():
+        assert main(["fit-batch", str(csv_data), "--model", "ggx", "--out-dir", "/proc/nox",
+                     "--quiet"]) == 2
+        one_line_error(capsys, "/proc/nox: cannot create the folder")
 
 
 def test_json_answers_on_failure_and_a_failed_export_keeps_the_fit(csv_data, tmp_path, capsys,

@@ -245,3 +245,19 @@ def test_negative_pixels_are_refused_by_file_count_and_place(tmp_path, capsys):
     images[2] = np.abs(images[2])
     path = write_stack(tmp_path, images, *_dirs(3), fmt="npy", name="S.json")
     assert read_stack(path).to_values(tmp_path / "v.npy").shape == (8, 3, 3)
+
+
+def test_an_image_too_large_for_memory_is_refused_from_its_header(tmp_path, monkeypatch):
+    """Each image is read whole: its size, from the header before a pixel is read, is checked
+    against the memory limit (issue 45: an image header can claim any size). Under a 100 kB
+    limit a 64 x 64 RGB image (64 * 64 * 3 values at 24 bytes: 295 kB) is refused, naming the
+    image, its size and the limit; at the default limit it is read."""
+    from brdf_fit.core.limits import ENV, LimitError
+
+    path = write_stack(tmp_path, np.ones((2, 64, 64, 3)), *_dirs(2), fmt="npy", name="S.json")
+    monkeypatch.setenv(ENV, "100K")
+    with pytest.raises(LimitError) as e:
+        read_stack(path)
+    assert "an image of 64x64 x 3 channel(s), read whole would take 295 kB" in str(e.value)
+    monkeypatch.delenv(ENV)
+    assert read_stack(path).shape == (64, 64)
