@@ -158,3 +158,49 @@ def pytest_collection_modifyitems(config, items):
                 slow = slow or func in CATALOGUE_SLOW or name in NATIVE_VARIANTS
         if slow:
             item.add_marker(pytest.mark.slow)
+
+
+# ----------------------------------------------------------------------------- compile counts
+#: with ``$BRDF_FIT_COMPILE_REPORT=FILE`` every pytest process (each xdist worker) appends one
+#: JSON line per test file to FILE when it ends: the programs XLA compiled while the file's
+#: tests ran (setup and teardown included), the seconds spent tracing, lowering and compiling,
+#: and the tests' wall seconds; what compiles while modules are collected is "<collection>".
+#: benchmarks/bench_compiles.py --tests runs the suite with it and writes the table (issue 41).
+COMPILE_REPORT_ENV = "BRDF_FIT_COMPILE_REPORT"
+
+if os.environ.get(COMPILE_REPORT_ENV):
+    import json
+    import time
+    from collections import defaultdict
+
+    _EVENTS = {"/jax/core/compile/backend_compile_duration": "compile_s",
+               "/jax/core/compile/jaxpr_trace_duration": "trace_s",
+               "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower_s"}
+    _per_file: dict = defaultdict(lambda: {"compiles": 0, "compile_s": 0.0, "trace_s": 0.0,
+                                           "lower_s": 0.0, "tests": 0, "wall_s": 0.0})
+    _now = ["<collection>"]
+
+    def _on_event(name, secs, **kw):
+        key = _EVENTS.get(name)
+        if key is not None:
+            row = _per_file[_now[0]]
+            row[key] += secs
+            row["compiles"] += key == "compile_s"
+
+    jax.monitoring.register_event_duration_secs_listener(_on_event)
+
+    @pytest.hookimpl(hookwrapper=True)
+    def pytest_runtest_protocol(item, nextitem):
+        _now[0] = item.nodeid.split("::")[0]
+        t0 = time.perf_counter()
+        yield
+        row = _per_file[_now[0]]
+        row["tests"] += 1
+        row["wall_s"] += time.perf_counter() - t0
+        _now[0] = "<between tests>"
+
+    def pytest_sessionfinish(session, exitstatus):
+        worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
+        with open(os.environ[COMPILE_REPORT_ENV], "a", encoding="utf-8") as fh:
+            for path, row in sorted(_per_file.items()):
+                fh.write(json.dumps({"file": path, "worker": worker, **row}) + "\n")

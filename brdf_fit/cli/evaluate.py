@@ -28,10 +28,13 @@ def _in_plane(theta_i_deg, theta_o_deg, phi_i_deg=0.0):
 def evaluation_table(model_name: str, params: dict, theta_i_deg, theta_o_deg) -> dict:
     import jax.numpy as jnp
 
+    from brdf_fit.models._base import evaluate
+
     entry = load_registry().get(model_name)
     model = entry.build(**params)
     wi, wo = _in_plane(theta_i_deg, theta_o_deg)
-    f = np.asarray(model.eval(jnp.asarray(wi), jnp.asarray(wo)))
+    # one compiled program (model.eval called eagerly compiled 32, one per operation of ggx)
+    f = np.asarray(evaluate(model, jnp.asarray(wi), jnp.asarray(wo)))
     rows = []
     for a, ti in enumerate(theta_i_deg):
         for b, to in enumerate(theta_o_deg):

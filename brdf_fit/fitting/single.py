@@ -84,12 +84,13 @@ from brdf_fit.fitting.solvers import (
     bucket,
     covariance,
     covariance_normal,
+    dense_bucket,
     solve,
 )
 
 __all__ = ["FitResult", "fit", "solve", "covariance", "covariance_normal", "METRICS", "SOLVERS",
            "RELATIVE_FLOOR", "Transform", "FitError", "FitProblem", "at_bound", "bucket",
-           "BUCKETS_PER_OCTAVE", "MIN_BUCKET"]
+           "dense_bucket", "BUCKETS_PER_OCTAVE", "MIN_BUCKET"]
 
 
 def __getattr__(name: str):
@@ -173,12 +174,12 @@ def json_floats(v):
 
 
 def _pad(arrays, n: int, at_least: int | None = None):
-    """``arrays`` of :func:`_arrays` (``n`` samples) padded to :func:`bucket` (n) samples that do
-    not count: weight 0 (their residuals are exactly 0: the metric multiplies by sqrt(w), or
+    """``arrays`` of :func:`_arrays` (``n`` samples) padded to :func:`dense_bucket` (n) samples
+    that do not count: weight 0 (their residuals are exactly 0: the metric multiplies by sqrt(w), or
     with sigma sets the scale to 0 where w = 0), at the normal (wi = wo = z, finite for every
     model), value 0 and sigma 1."""
     wi, wo, f, w, sigma, floor = arrays
-    extra = bucket(max(n, at_least or 0)) - n
+    extra = dense_bucket(max(n, at_least or 0)) - n
     if extra == 0:
         return arrays
 
@@ -350,7 +351,7 @@ def fit(
     the defaults are one of its candidates); ``"none"`` starts them at the defaults.
     ``pad_to``: pad the samples (weight 0, not counted anywhere) to the bucket of at least this
     many, so that a series of fits of different sizes shares one compiled solver (every fit pads
-    to :func:`bucket` of its own size anyway).
+    to :func:`dense_bucket` of its own size anyway).
 
     Large data (at least :data:`brdf_fit.fitting.chunked.CHUNKED_FROM` residuals) with the
     default solver are fitted by :mod:`brdf_fit.fitting.chunked`: normal equations summed over

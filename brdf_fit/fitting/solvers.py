@@ -21,7 +21,7 @@ import numpy as np
 
 from brdf_fit.fitting.problem import FitProblem
 
-__all__ = ["SOLVERS", "solve", "covariance", "covariance_normal", "bucket",
+__all__ = ["SOLVERS", "solve", "covariance", "covariance_normal", "bucket", "dense_bucket",
            "BUCKETS_PER_OCTAVE", "MIN_BUCKET"]
 
 
@@ -145,15 +145,27 @@ def covariance_normal(A, meat, rss, m_eff):
 
 #: sample counts are padded up to a bucket (:func:`bucket`) so that fits of data of nearby sizes
 #: share one compiled solver: at most 1/BUCKETS_PER_OCTAVE (12.5%) more samples, and
-#: BUCKETS_PER_OCTAVE shapes per doubling of the sample count
+#: BUCKETS_PER_OCTAVE shapes per doubling of the sample count (the chunked path of large data,
+#: whose work grows with the padding: a whole MERL file)
 BUCKETS_PER_OCTAVE = 8
+#: the same for the dense path (data held whole: :func:`dense_bucket`), coarser: there a compile
+#: (2-5 s on 2 cores) costs far more than up to 50% more samples (milliseconds), and with 8 per
+#: octave a file of 90% of another's samples compiled 2 programs again (2.3 s;
+#: benchmarks/bench_compiles.py, fit-again)
+DENSE_BUCKETS_PER_OCTAVE = 2
 #: no bucket is smaller than this
 MIN_BUCKET = 64
 
 
-def bucket(n: int) -> int:
-    """The padded sample count of ``n`` samples (``n`` itself when it is a bucket)."""
+def bucket(n: int, per_octave: int = BUCKETS_PER_OCTAVE) -> int:
+    """The padded sample count of ``n`` samples (``n`` itself when it is a bucket): the next
+    multiple of ``2**floor(log2 n) / per_octave`` (a power of 2)."""
     if n <= MIN_BUCKET:
         return MIN_BUCKET
-    step = 2 ** max(int(math.floor(math.log2(n))) - int(math.log2(BUCKETS_PER_OCTAVE)), 0)
+    step = 2 ** max(int(math.floor(math.log2(n))) - int(math.log2(per_octave)), 0)
     return -(-n // step) * step
+
+
+def dense_bucket(n: int) -> int:
+    """:func:`bucket` of the dense path (:data:`DENSE_BUCKETS_PER_OCTAVE`)."""
+    return bucket(n, DENSE_BUCKETS_PER_OCTAVE)

@@ -138,7 +138,8 @@ def test_padding_changes_nothing_but_the_compiled_shape():
     result: parameters, standard errors, rms, sample count."""
     import numpy as np
 
-    from brdf_fit.fitting.single import bucket, fit
+    from brdf_fit.fitting.single import dense_bucket as bucket
+    from brdf_fit.fitting.single import fit
     from data_synth.recipes import synthesize
 
     d = synthesize({"model": "ggx", "params": {"alpha": 0.25}, "seed": 4,
