@@ -164,19 +164,23 @@ def render(doc: dict) -> str:
             tot.get("wall_s", 1e-9), 1e-9)
         lines += ["## Test files, by seconds compiling", "",
                   f"`pytest {' '.join(t['pytest_args'])}`: {t['summary']}. In all: "
-                  f"{int(tot.get('compiles', 0))} programs compiled, "
+                  f"{int(tot.get('compiles', 0))} programs compiled "
+                  f"({int(tot.get('loads', 0))} more loaded from the persistent cache), "
                   f"{tot.get('compile_s', 0):.0f} s compiling, {tot.get('trace_s', 0):.0f} s "
-                  f"tracing, {tot.get('lower_s', 0):.0f} s lowering, of {tot.get('wall_s', 0):.0f} s "
+                  f"tracing, {tot.get('lower_s', 0):.0f} s lowering, "
+                  f"of {tot.get('wall_s', 0):.0f} s "
                   f"of test time summed over the workers ({100 * share:.0f}% tracing, lowering "
                   "and compiling).", "",
-                  "| file | tests | programs | compile s | trace s | lower s | test s |",
-                  "|---|---:|---:|---:|---:|---:|---:|"]
+                  "| file | tests | programs compiled | compile s | loaded from cache | load s | "
+                  "trace s | lower s | test s |",
+                  "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
         for r in t["files"][:40]:
             lines.append(f"| {r['file']} | {int(r.get('tests', 0))} | {int(r.get('compiles', 0))} "
-                         f"| {r.get('compile_s', 0):.1f} | {r.get('trace_s', 0):.1f} | "
+                         f"| {r.get('compile_s', 0):.1f} | {int(r.get('loads', 0))} | "
+                         f"{r.get('load_s', 0):.1f} | {r.get('trace_s', 0):.1f} | "
                          f"{r.get('lower_s', 0):.1f} | {r.get('wall_s', 0):.1f} |")
         if len(t["files"]) > 40:
-            lines.append(f"| ({len(t['files']) - 40} more files in compiles.json) | | | | | | |")
+            lines.append(f"| ({len(t['files']) - 40} more files in the .json) | | | | | | | | |")
         lines.append("")
     return "\n".join(lines)
 

@@ -9,6 +9,7 @@ import numpy as np
 
 from brdf_fit.cli._common import (
     CLIError,
+    raise_terminated,
 )
 
 
@@ -61,6 +62,14 @@ def join_run(args):
     kw = {} if args.join_timeout is None else {"timeout_s": args.join_timeout}
     index, count = distributed.initialize(args.coordinator, args.num_processes,
                                           args.process_id, **kw)
+    # JAX's runtime installs its own SIGTERM handler (its preemption notifier), which logs the
+    # signal and carries on: a process of a stopped launcher then ran to the end or until it was
+    # killed. This command's handler goes back, so SIGTERM ends it as it ends every command.
+    import signal
+    import threading
+
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, raise_terminated)
     return (index, count), distributed.barrier
 
 

@@ -53,6 +53,11 @@ class Terminated(BaseException):
     command stops the same way: what is finished kept, one line, exit status 143."""
 
 
+def raise_terminated(signum, frame):
+    """The SIGTERM handler of every command: :class:`Terminated` in the main thread."""
+    raise Terminated()
+
+
 def load_registry():
     from brdf_fit import registry
 

@@ -1,13 +1,30 @@
 """What a launcher of local processes needs (``fit --processes``, ``fit-batch
---processes``): its arguments for them, and stopping them all."""
+--processes``): its arguments for them, starting them, and stopping them all."""
 
 from __future__ import annotations
 
+import os
 import sys
 
+#: set in the environment of a launcher's processes: a process stopped by its launcher ends
+#: silently (the launcher prints the one line for the run)
+LAUNCHED_ENV = "BRDF_FIT_LAUNCHED"
+
+
+def launch(argv: list[str]):
+    """Start ``brdf-fit ARGV`` as a process of this launcher: the same interpreter, its
+    output discarded (the launcher reports), its errors on this stderr, in a session of its own
+    (a Ctrl-C at the terminal reaches the launcher alone, which stops it: :func:`stop_children`),
+    marked :data:`LAUNCHED_ENV`."""
+    import subprocess
+
+    return subprocess.Popen([sys.executable, "-m", "brdf_fit.cli", *argv],
+                            stdout=subprocess.DEVNULL, start_new_session=True,
+                            env={**os.environ, LAUNCHED_ENV: "1"})
+
 #: seconds a stopped launcher's processes get to end on SIGTERM before they are killed (a
-#: process inside an XLA computation or a barrier of JAX's coordination service answers only
-#: when it returns: 12-42 s measured; every block a process finished is on disk already)
+#: process answers when its current XLA computation returns; one waiting in a barrier of JAX's
+#: coordination service may not: every block a process finished is on disk already)
 STOP_GRACE_S = 3.0
 
 

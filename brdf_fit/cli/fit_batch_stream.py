@@ -23,7 +23,7 @@ from brdf_fit.cli._common import (
     entry_fix_init,
     read_data,
 )
-from brdf_fit.cli._processes import child_argv, stop_children
+from brdf_fit.cli._processes import child_argv, launch, stop_children
 from brdf_fit.cli._progress import BatchProgress
 from brdf_fit.cli.fit_batch_arrays import run_images, run_values
 from brdf_fit.core.atomic import write_text_atomic
@@ -123,7 +123,6 @@ def _fit_batch_processes(args) -> int:
     JAX's multi-process runtime (process 0 hosts the coordinator on a free local port); this
     process launches them, shows the blocks written, and reports the folder when all are done."""
     import socket
-    import subprocess
     import time
 
     out = check_out_dir(args)
@@ -145,11 +144,8 @@ def _fit_batch_processes(args) -> int:
     argv = child_argv(args, ("--processes", "--out"), ("--resume", "--json", "--quiet"))
     n = args.processes
     before = {int(p.stem.split("_")[1]) for p in out.glob("block_*.npz")} if out.is_dir() else set()
-    procs = [subprocess.Popen([sys.executable, "-m", "brdf_fit.cli", *argv, "--quiet",
-                               "--coordinator", f"127.0.0.1:{port}", "--num-processes", str(n),
-                               "--process-id", str(i)], stdout=subprocess.DEVNULL,
-                              start_new_session=True)
-             for i in range(n)]
+    procs = [launch([*argv, "--quiet", "--coordinator", f"127.0.0.1:{port}",
+                     "--num-processes", str(n), "--process-id", str(i)]) for i in range(n)]
     t0 = time.perf_counter()
     tty, last, shown = sys.stderr.isatty(), -1.0, None
     try:

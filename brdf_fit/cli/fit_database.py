@@ -17,7 +17,7 @@ from brdf_fit.cli._common import (
     load_registry,
     parse_params,
 )
-from brdf_fit.cli._processes import child_argv, stop_children
+from brdf_fit.cli._processes import child_argv, launch, stop_children
 
 #: data file extensions a folder given to `fit` is searched for
 _DATA_EXTS = (".binary", ".csv", ".npz")
@@ -205,13 +205,10 @@ def _database_processes(args) -> None:
     """``--processes N``: N local processes, each fitting every N-th pair (``--shard I/N``);
     returns when all have ended (the caller then assembles the table, fitting whatever a
     process could not finish). Ctrl-C stops them all."""
-    import subprocess
 
     argv = child_argv(args, ("--processes",), ("--json", "--quiet"))
     n = args.processes
-    procs = [subprocess.Popen([sys.executable, "-m", "brdf_fit.cli", *argv, "--shard",
-                               f"{i}/{n}", *(["--quiet"] if args.quiet else [])],
-                              stdout=subprocess.DEVNULL, start_new_session=True)
+    procs = [launch([*argv, "--shard", f"{i}/{n}", *(["--quiet"] if args.quiet else [])])
              for i in range(n)]
     try:
         for p in procs:

@@ -27,8 +27,10 @@ from brdf_fit.cli import (
 from brdf_fit.cli._common import (
     Terminated,
     memory_size,
+    raise_terminated,
     user_errors,
 )
+from brdf_fit.cli._processes import LAUNCHED_ENV
 
 #: the commands in the order ``brdf-fit --help`` lists them; each module has ``add_parser(sub)``
 #: (its options, with ``func=run``) and ``run(args)``
@@ -115,13 +117,11 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
     print(f"brdf-fit: warning: {' '.join(str(message).split())}", file=file or sys.stderr)
 
 
-def _raise_terminated(signum, frame):
-    raise Terminated()
-
-
 def _interrupted(args, status: int) -> int:
     """One line for an interrupted command (130: SIGINT, 143: SIGTERM), saying how to go on
     where the command keeps its work in a folder; the JSON answer under --json."""
+    if os.environ.get(LAUNCHED_ENV):  # stopped by its launcher, which says it for the run
+        return status
     what = "interrupted" if status == 130 else "terminated"
     out_dir = getattr(args, "out_dir", None)
     msg = (f"{what}; the blocks written are kept in {out_dir}: the same command with --resume "
@@ -161,7 +161,7 @@ def main(argv: list[str] | None = None) -> int:
     shown = warnings.showwarning
     warnings.showwarning = _show_warning
     try:
-        previous = signal.signal(signal.SIGTERM, _raise_terminated)
+        previous = signal.signal(signal.SIGTERM, raise_terminated)
     except ValueError:  # not the main thread: leave signals to whoever owns it
         previous = None
     try:
