@@ -163,7 +163,8 @@ def pytest_collection_modifyitems(config, items):
 # ----------------------------------------------------------------------------- compile counts
 #: with ``$BRDF_FIT_COMPILE_REPORT=FILE`` every pytest process (each xdist worker) appends one
 #: JSON line per test file to FILE when it ends: the programs XLA compiled while the file's
-#: tests ran (setup and teardown included), the seconds spent tracing, lowering and compiling,
+#: tests ran (setup and teardown included) and those loaded from the persistent compilation
+#: cache instead, the seconds spent tracing, lowering, compiling and loading,
 #: and the tests' wall seconds; what compiles while modules are collected is "<collection>".
 #: benchmarks/bench_compiles.py --tests runs the suite with it and writes the table (issue 41).
 COMPILE_REPORT_ENV = "BRDF_FIT_COMPILE_REPORT"
@@ -175,9 +176,11 @@ if os.environ.get(COMPILE_REPORT_ENV):
 
     _EVENTS = {"/jax/core/compile/backend_compile_duration": "compile_s",
                "/jax/core/compile/jaxpr_trace_duration": "trace_s",
-               "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower_s"}
-    _per_file: dict = defaultdict(lambda: {"compiles": 0, "compile_s": 0.0, "trace_s": 0.0,
-                                           "lower_s": 0.0, "tests": 0, "wall_s": 0.0})
+               "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower_s",
+               "/jax/compilation_cache/cache_retrieval_time_sec": "load_s"}
+    _per_file: dict = defaultdict(lambda: {"compiles": 0, "compile_s": 0.0, "loads": 0,
+                                           "load_s": 0.0, "trace_s": 0.0, "lower_s": 0.0,
+                                           "tests": 0, "wall_s": 0.0})
     _now = ["<collection>"]
 
     def _on_event(name, secs, **kw):
@@ -186,6 +189,7 @@ if os.environ.get(COMPILE_REPORT_ENV):
             row = _per_file[_now[0]]
             row[key] += secs
             row["compiles"] += key == "compile_s"
+            row["loads"] += key == "load_s"  # from the persistent compilation cache
 
     jax.monitoring.register_event_duration_secs_listener(_on_event)
 
