@@ -23,9 +23,14 @@ def test_a_changed_entry_is_seen(monkeypatch):
     """The negative control: a live entry that differs from the file fails the comparison."""
     from brdf_fit import registry
 
-    entry = registry.get("ggx")
-    monkeypatch.setattr(type(entry), "to_dict", lambda self, f=type(entry).to_dict: {
-        **f(self), "description": "changed"} if self.name == "ggx" else f(self))
+    entry_class = type(registry.get("ggx"))
+    original = entry_class.to_dict
+
+    def changed(self):
+        d = original(self)
+        return {**d, "description": "changed"} if self.name == "ggx" else d
+
+    monkeypatch.setattr(entry_class, "to_dict", changed)
     assert read_listing() != live_listing()
 
 
