@@ -7,33 +7,23 @@ import json
 
 import numpy as np
 
-from brdf_fit.cli._common import (
-    CLIError,
-    raise_terminated,
-)
+from brdf_fit.cli._common import CLIError, check_output_dir
 
 
 def check_out_dir(args):
     """``--out-dir`` as a path (the folder created), refused before any work when it names a
-    file, its parent folder does not exist, or it cannot be created."""
+    file, its parent folder does not exist, or it cannot be created or written
+    (:func:`~brdf_fit.cli._common.check_output_dir`)."""
     import pathlib
 
     out = pathlib.Path(args.out_dir)
-    if out.exists() and not out.is_dir():
-        raise CLIError(f"{args.out_dir}: --out-dir names an existing file, not a folder")
     parent = out.parent if str(out.parent) else pathlib.Path(".")
     if not out.exists() and parent.exists() and not parent.is_dir():
         raise CLIError(f"{args.out_dir}: cannot write: {str(parent)!r} is a file, not a folder")
     if not out.exists() and not parent.is_dir():
         raise CLIError(f"{args.out_dir}: cannot write: folder {str(parent)!r} does not exist")
-    if not out.exists():  # created now, so that a folder that cannot be (under /proc) is refused
-        try:
-            out.mkdir()
-        except FileExistsError:
-            pass  # another process of the run made it
-        except OSError as e:
-            raise CLIError(f"{args.out_dir}: cannot create the folder ({e.strerror or e})"
-                           ) from None
+    # an existing file refused, the folder created (one under /proc is refused), writable
+    check_output_dir(args.out_dir, "--out-dir")
     return out
 
 
@@ -62,14 +52,6 @@ def join_run(args):
     kw = {} if args.join_timeout is None else {"timeout_s": args.join_timeout}
     index, count = distributed.initialize(args.coordinator, args.num_processes,
                                           args.process_id, **kw)
-    # JAX's runtime installs its own SIGTERM handler (its preemption notifier), which logs the
-    # signal and carries on: a process of a stopped launcher then ran to the end or until it was
-    # killed. This command's handler goes back, so SIGTERM ends it as it ends every command.
-    import signal
-    import threading
-
-    if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGTERM, raise_terminated)
     return (index, count), distributed.barrier
 
 

@@ -157,16 +157,14 @@ def read_data(path: str):
         raise CLIError(str(e)) from None
 
 
-def write_data(data, path: str, provenance: dict | None = None) -> list[str]:
-    """:func:`brdf_fit.io.write` (``data=None``: only check the format), errors as CLI errors."""
+def check_data_format(path: str) -> None:
+    """Refuse a data file :func:`brdf_fit.io.write` cannot write (its extension), as a CLI
+    error, before any work."""
     from brdf_fit import io
     from brdf_fit.data import DataError
 
     try:
-        if data is None:
-            io.check_writable_format(path)
-            return []
-        return io.write(data, path, provenance=provenance)
+        io.check_writable_format(path)
     except DataError as e:
         raise CLIError(str(e)) from None
 

@@ -6,9 +6,9 @@ import json
 
 from brdf_fit.cli._common import (
     Outputs,
+    check_data_format,
     check_output_file,
     use_x64,
-    write_data,
 )
 
 
@@ -16,7 +16,7 @@ def run(args) -> int:
     use_x64()
     from data_synth.recipes import synthesize
 
-    write_data(None, args.output)  # the format error before the work
+    check_data_format(args.output)  # the format error before the work
     check_output_file(args.output, (".csv", ".npz"), "-o")
     data = synthesize(args.recipe)
     meta = data.metadata

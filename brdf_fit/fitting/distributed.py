@@ -38,7 +38,13 @@ def initialize(coordinator: str | None = None, num_processes: int | None = None,
     and return ``(index, count)``. ``coordinator`` (``HOST:PORT``, process 0's), ``num_processes``
     and ``process_id`` together, or none of them (read from the cluster's environment by
     JAX). A process that cannot reach the coordinator within ``timeout_s`` raises
-    :class:`~brdf_fit.fitting.problem.FitError` naming it."""
+    :class:`~brdf_fit.fitting.problem.FitError` naming it. The process keeps the SIGTERM
+    handling it had: JAX's runtime installs its own handler (its preemption notifier, which
+    logs the signal and carries on), under which a stopped launcher's processes ran on until
+    they were killed (issue 45)."""
+    import signal
+    import threading
+
     import jax
 
     given = [coordinator is not None, num_processes is not None, process_id is not None]
@@ -51,6 +57,8 @@ def initialize(coordinator: str | None = None, num_processes: int | None = None,
         coordinator, num_processes, process_id = _from_cluster(timeout_s)
     if int(process_id) != 0:
         _wait_for(coordinator, timeout_s, process_id, num_processes)
+    main_thread = threading.current_thread() is threading.main_thread()
+    sigterm = signal.getsignal(signal.SIGTERM) if main_thread else None
     try:
         jax.distributed.initialize(
             coordinator_address=coordinator, num_processes=num_processes, process_id=process_id,
@@ -61,6 +69,9 @@ def initialize(coordinator: str | None = None, num_processes: int | None = None,
         first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
         raise FitError(f"process {process_id} of {num_processes}: could not join the run at "
                        f"{where} within {timeout_s:g} s ({first})") from None
+    finally:
+        if sigterm is not None:  # (None: a handler not installed from Python, left alone)
+            signal.signal(signal.SIGTERM, sigterm)
     return jax.process_index(), jax.process_count()
 
 
