@@ -12,6 +12,7 @@ documented order, so a test's data is fixed by its seed (see also :func:`seed_of
 
 from __future__ import annotations
 
+import contextlib
 import math
 import zlib
 from collections.abc import Mapping
@@ -49,6 +50,31 @@ def draw_jit(model, wo, uc, u):
     """``(wi, pdf, weight)`` of :func:`sample_jit`."""
     s = model.sample(jax.numpy.broadcast_to(wo, u.shape[:-1] + (3,)), uc, u)
     return s.wi, s.pdf, s.weight
+
+
+#: JAX's events for one program compiled by XLA, or loaded from the persistent compilation cache
+#: instead (each reported once per program, with its duration)
+COMPILE_EVENTS = ("/jax/core/compile/backend_compile_duration",
+                  "/jax/compilation_cache/cache_retrieval_time_sec")
+
+
+@contextlib.contextmanager
+def counting_compiles():
+    """Yield a list that holds one entry per program XLA compiles (or loads from the persistent
+    cache) inside the block (``jax.monitoring``'s backend compile events: whatever compiled
+    the program, it is counted)."""
+    seen: list[float] = []
+    active = [True]
+
+    def listener(name, secs, **kw):
+        if active[0] and name in COMPILE_EVENTS:
+            seen.append(secs)
+
+    jax.monitoring.register_event_duration_secs_listener(listener)
+    try:
+        yield seen
+    finally:
+        active[0] = False  # JAX has no public way to remove a listener: it goes quiet
 
 
 def seed_of(*key) -> int:

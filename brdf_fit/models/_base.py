@@ -38,6 +38,7 @@ Units
 from __future__ import annotations
 
 import abc
+import functools
 from typing import Any, ClassVar, NamedTuple
 
 import equinox as eqx
@@ -91,6 +92,49 @@ class QuadratureLobe(NamedTuple):
 NO_QUADRATURE_LOBE = QuadratureLobe("none")
 
 
+#: the public methods that run as one compiled program when called outside a JAX trace
+COMPILED_METHODS = ("eval", "pdf", "sample")
+
+
+def _traced(tree) -> bool:
+    """Whether any leaf of ``tree`` is a tracer (the call is inside ``jit``, ``grad``, ``vmap``
+    ...: the caller's trace compiles it whole already)."""
+    return any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(tree))
+
+
+def _as_arrays(tree):
+    """``tree`` with its Python float and complex leaves as weak-typed JAX arrays (their dtype
+    and promotion unchanged). ``equinox.filter_jit`` holds every non-array leaf static, so a
+    model built with ``alpha=0.3`` would compile once per value of alpha: a sweep over alpha
+    in a Python loop would compile every step."""
+    def convert(x):
+        return jnp.asarray(x) if isinstance(x, (float, complex)) else x
+
+    return jax.tree_util.tree_map(convert, tree)
+
+
+def compiled_outside_traces(method):
+    """``method`` (a model's ``eval``, ``pdf`` or ``sample``) as one compiled program when it is
+    called eagerly, and as itself inside a trace. Called eagerly, JAX dispatches a model's
+    operations one by one, each compiled on first use and each a pass over memory: 3.4 s for
+    one first evaluation of ggx-conductor in a fresh process against 0.3 s compiled whole, and
+    a fraction of the compiled throughput after that (issue 44; measured in
+    ``tests/models/test_compiled_methods.py`` and ``benchmarks/bench_eval.py``). One program
+    per model structure (the static fields and the tree of parameters) and argument shapes
+    (``equinox.filter_jit``'s cache); the parameters' values are arguments, not constants.
+    ``method.raw`` is the method itself."""
+    jitted = eqx.filter_jit(method)
+
+    @functools.wraps(method)
+    def call(self, *args, **kwargs):
+        if _traced((self, args, kwargs)):
+            return method(self, *args, **kwargs)
+        return jitted(_as_arrays(self), *_as_arrays(args), **_as_arrays(kwargs))
+
+    call.raw = method
+    return call
+
+
 class AbstractBRDF(eqx.Module):
     """A BRDF: evaluate, sample and report the sampling density (see the module docstring for the
     conventions, which every subclass follows). Subclasses are final; compose, don't inherit.
@@ -98,7 +142,18 @@ class AbstractBRDF(eqx.Module):
     Besides ``eval``, ``pdf`` and ``sample`` a model may override the declared hooks below (each
     has a default): :meth:`quadrature_lobe`, :meth:`terms`, :meth:`pdf_terms`,
     :meth:`is_anisotropic`, :meth:`delta_albedo`, :meth:`selection_hint`, :meth:`channels`.
+
+    A subclass's ``eval``, ``pdf`` and ``sample`` called outside a JAX trace each run as one
+    compiled program (:func:`compiled_outside_traces`, applied to every subclass); inside
+    ``jit``, ``grad`` or ``vmap`` they are traced as written.
     """
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        for name in COMPILED_METHODS:
+            method = cls.__dict__.get(name)
+            if callable(method) and not hasattr(method, "raw"):
+                setattr(cls, name, compiled_outside_traces(method))
 
     is_delta: ClassVar[bool] = False
     #: whether ``f`` depends on the azimuth of the view (the checks then look at three azimuths);
@@ -186,10 +241,9 @@ def astype(model, dtype):
     return jax.tree_util.tree_map(cast, model)
 
 
-@eqx.filter_jit
 def evaluate(model, wi, wo):
-    """``model.eval(wi, wo)`` as one compiled program (shared by every model of the same
-    structure and argument shapes). Called eagerly, ``eval`` dispatches each operation on its
-    own, and each compiles on first use: 3.4 s for one evaluation of ggx-conductor (complex
-    Fresnel) in a fresh process, against 0.3 s compiled whole (AMD EPYC 2 cores, measured)."""
+    """``model.eval(wi, wo)``, which outside a trace is one compiled program
+    (:func:`compiled_outside_traces`; a name kept for the callers that wrote it when ``eval``
+    itself dispatched op by op: 3.4 s for one evaluation of ggx-conductor in a fresh process
+    that way, against 0.3 s compiled whole, AMD EPYC 2 cores, measured)."""
     return model.eval(wi, wo)

@@ -2,39 +2,14 @@
 compiled for the first, in one process. The count is XLA's own (``jax.monitoring``'s backend
 compile events), so any new program, whatever compiled it, fails the test."""
 
-import contextlib
-
 import jax
 import numpy as np
-from _helpers import random_dirs
+from _helpers import counting_compiles, random_dirs
 
 from brdf_fit import registry
 from brdf_fit.data import GonioData
 from brdf_fit.fitting.single import fit
 from brdf_fit.fitting.solvers import dense_bucket
-
-#: JAX's events for one program compiled by XLA, or loaded from the persistent compilation cache
-#: instead (each reported once per program, with its duration)
-COMPILE_EVENTS = ("/jax/core/compile/backend_compile_duration",
-                  "/jax/compilation_cache/cache_retrieval_time_sec")
-
-
-@contextlib.contextmanager
-def counting_compiles():
-    """Yield a list that holds one entry per program XLA compiles (or loads from the persistent
-    cache) inside the block."""
-    seen: list[float] = []
-    active = [True]
-
-    def listener(name, secs, **kw):
-        if active[0] and name in COMPILE_EVENTS:
-            seen.append(secs)
-
-    jax.monitoring.register_event_duration_secs_listener(listener)
-    try:
-        yield seen
-    finally:
-        active[0] = False  # JAX has no public way to remove a listener: it goes quiet
 
 
 def _data(n, seed):
