@@ -24,7 +24,8 @@ from typing import Any
 import numpy as np
 
 __all__ = ["GonioData", "DataError", "MAX_VALUE", "UNIT_TOL", "unit_directions", "check_values",
-           "wavelength_channels", "channel_wavelengths"]
+           "wavelength_channels", "channel_wavelengths", "SUBSAMPLES", "subsample_index",
+           "half_difference_strata"]
 
 
 class DataError(ValueError):
@@ -255,6 +256,11 @@ class GonioData:
             sigma=None if self.sigma is None else self.sigma[idx],
         )
 
+    def subsample(self, n: int, seed: int = 0, how: str = "uniform") -> GonioData:
+        """At most ``n`` samples, drawn without replacement, in file order
+        (:func:`subsample_index`); all of them when there are no more than ``n``."""
+        return self if self.n <= n else self.subset(subsample_index(self, n, seed, how))
+
     def with_metadata(self, **kw) -> GonioData:
         return dataclasses.replace(self, metadata={**self.metadata, **kw})
 
@@ -279,3 +285,68 @@ class GonioData:
             return np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), cos_t], -1)
 
         return GonioData(wi=unit(theta_i, phi_i), wo=unit(theta_o, phi_o), value=value, **kw)
+
+
+# ----------------------------------------------------------------------------- subsamples
+
+#: the ways :func:`subsample_index` draws: a simple random sample, or one stratified by the half
+#: and difference angles
+SUBSAMPLES = ("uniform", "stratified")
+#: strata of the stratified subsample: bins of theta_h, equal in sqrt(theta_h / 90 deg) (MERL's
+#: theta_h index, Matusik et al. 2003: narrow near the specular peak, where the BRDF changes
+#: fastest), and of theta_d, equal in angle
+STRATA_THETA_H = 16
+STRATA_THETA_D = 8
+
+
+def half_difference_strata(wi, wo) -> np.ndarray:
+    """Stratum of every pair (``0 .. STRATA_THETA_H * STRATA_THETA_D - 1``) by its half angle
+    theta_h and difference angle theta_d (Rusinkiewicz 1998: ``h = (wi + wo) / |wi + wo|``,
+    ``cos theta_h = h_z``, ``cos theta_d = wi . h``). A pair with ``wi = -wo`` (no half vector)
+    falls in the last stratum."""
+    wi, wo = np.asarray(wi, float), np.asarray(wo, float)
+    h = wi + wo
+    norm = np.linalg.norm(h, axis=-1)
+    ok = norm > 0
+    h = h / np.where(ok, norm, 1.0)[:, None]
+    theta_h = np.where(ok, np.arccos(np.clip(h[:, 2], -1.0, 1.0)), np.pi / 2)
+    theta_d = np.where(ok, np.arccos(np.clip(np.sum(wi * h, -1), -1.0, 1.0)), np.pi / 2)
+    ih = np.floor(np.sqrt(np.clip(theta_h / (np.pi / 2), 0.0, 1.0)) * STRATA_THETA_H)
+    idd = np.floor(np.clip(theta_d / (np.pi / 2), 0.0, 1.0) * STRATA_THETA_D)
+    ih = np.minimum(ih, STRATA_THETA_H - 1).astype(np.int64)
+    idd = np.minimum(idd, STRATA_THETA_D - 1).astype(np.int64)
+    return ih * STRATA_THETA_D + idd
+
+
+def subsample_index(data: GonioData, n: int, seed: int = 0, how: str = "uniform") -> np.ndarray:
+    """Sorted indices of ``n`` of ``data``'s samples (``n < data.n``), seeded.
+
+    ``"uniform"``: a simple random sample. ``"stratified"``: a stratified random sample with
+    proportional allocation (Cochran, *Sampling Techniques*, 3rd ed., 1977, ch. 5) over the
+    strata of :func:`half_difference_strata`: each stratum gets its share ``n N_s / N`` of the
+    samples, rounded by largest remainders so that the shares add up to ``n``, drawn uniformly
+    inside it. Every sample still stands for ``N / n`` of the data (no weights are needed and the
+    fit's objective is the same), but every stratum holding at least ``N / n`` samples is
+    represented by its share, where a simple random sample leaves the small strata (the
+    specular peak of a MERL file, grazing difference angles) to chance."""
+    if how not in SUBSAMPLES:
+        raise ValueError(f"subsample {how!r}: expected one of {', '.join(SUBSAMPLES)}")
+    N = data.n
+    if not 0 < n < N:
+        raise ValueError(f"a subsample of {n} of {N} samples: expected 0 < n < {N}")
+    rng = np.random.default_rng(seed)
+    if how == "uniform":
+        return np.sort(rng.choice(N, n, replace=False))
+    stratum = half_difference_strata(data.wi, data.wo)
+    counts = np.bincount(stratum, minlength=STRATA_THETA_H * STRATA_THETA_D)
+    share = counts * (n / N)
+    take = np.floor(share).astype(np.int64)
+    rest = n - int(take.sum())
+    if rest:  # largest remainders first; ties by stratum number (deterministic)
+        order = np.argsort(-(share - take), kind="stable")
+        take[order[:rest]] += 1
+    by_stratum = np.argsort(stratum, kind="stable")
+    starts = np.concatenate([[0], np.cumsum(counts)])
+    picked = [by_stratum[starts[s]:starts[s + 1]][rng.choice(counts[s], k, replace=False)]
+              for s, k in enumerate(take) if k]
+    return np.sort(np.concatenate(picked))

@@ -25,6 +25,7 @@ from brdf_fit.cli._export import export_kind, target_entry, write_export
 from brdf_fit.cli._progress import StepProgress
 from brdf_fit.cli.check import print_check_table
 from brdf_fit.cli.fit_database import run_database
+from brdf_fit.data import SUBSAMPLES
 
 #: seconds after which `brdf-fit fit` stops a large (chunked) fit that has not converged
 FIT_TIME_LIMIT = 60.0
@@ -105,9 +106,7 @@ def run(args) -> int:
     if args.max_samples is not None:
         if args.max_samples < 1:
             raise CLIError(f"--max-samples must be >= 1, got {args.max_samples}")
-        if data.n > args.max_samples:
-            rng = np.random.default_rng(args.seed)
-            data = data.subset(np.sort(rng.choice(data.n, args.max_samples, replace=False)))
+        data = data.subsample(args.max_samples, args.seed, args.subsample)
     if not args.quiet:  # one status line: a first fit spends most of its time compiling
         print(f"fitting {entry.name} to {data.n} samples x {data.n_channels} channels "
               f"(metric {args.metric}, {args.multistart} start(s)) ...", file=sys.stderr,
@@ -163,6 +162,10 @@ def add_parser(sub) -> None:
     f.add_argument("--seed", type=int, default=0, help="seed of multistart and --max-samples")
     f.add_argument("--max-samples", type=positive_int, default=None, metavar="N",
                    help="fit a seeded random subset of N samples (e.g. of a MERL file)")
+    f.add_argument("--subsample", choices=SUBSAMPLES, default="uniform",
+                   help="how --max-samples draws: a simple random sample (default), or one "
+                        "stratified by the half and difference angles, each stratum its "
+                        "proportional share")
     f.add_argument("--time-limit", type=positive_float, default=FIT_TIME_LIMIT, metavar="S",
                    help="stop a fit of large data (solved in chunks: a whole MERL file) that "
                         f"has not converged after S seconds, reported as not converged "

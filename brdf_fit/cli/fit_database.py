@@ -101,6 +101,8 @@ def _fit_database_run(args, models) -> int:
                "init": {k: np.asarray(v).tolist() for k, v in init.items()}}
     if args.max_samples is not None:  # part of each pair's identity, not a fit() option
         options["max_samples"] = args.max_samples
+        if args.subsample != "uniform":  # (absent when uniform: tables made before keep theirs)
+            options["subsample"] = args.subsample
     folder = args.table + database.PARTS_SUFFIX
     names = [e.name for e in entries]
     shard = _parse_shard(args.shard) if args.shard else None
@@ -116,13 +118,12 @@ def _fit_database_run(args, models) -> int:
         from brdf_fit import io
 
         data = io.read(path)  # a DataError is that file's failure, reported in the table's run
-        if max_samples is not None and data.n > max_samples:
-            rng = np.random.default_rng(args.seed)
-            data = data.subset(np.sort(rng.choice(data.n, max_samples, replace=False)))
+        if max_samples is not None:
+            data = data.subsample(max_samples, args.seed, args.subsample)
         return data
 
-    fit_options = {**{k: v for k, v in options.items() if k != "max_samples"}, "fix": fix,
-                   "init": init}
+    fit_options = {**{k: v for k, v in options.items() if k not in ("max_samples", "subsample")},
+                   "fix": fix, "init": init}
 
     def progress(done, total, text):
         if not args.quiet:
