@@ -73,6 +73,14 @@ def _print_fit(result, data, path: str) -> None:
         print(f"  at an interval end: {', '.join(result.at_bound)} (a limit, not an optimum; "
               "no standard error)")
     print_undetermined(result.undetermined)
+    pairs = result.strongly_correlated()
+    if pairs:
+        from brdf_fit.fitting.single import STRONG_CORRELATION
+
+        shown = ", ".join(f"{a} ~ {b} ({r:+.4f})" for a, b, r in pairs)
+        print(f"  strongly correlated (|r| >= {STRONG_CORRELATION:g}): {shown} (the data "
+              "determine a combination of each pair better than either; correlation matrix "
+              "in --json)")
     status = "yes" if result.converged else f"NO ({result.message})"
     print(f"converged: {status}; steps: {result.steps}; starts: {result.starts}; "
           f"residual rms: {result.residual_rms:.6g}; time: {result.seconds:.2f} s")

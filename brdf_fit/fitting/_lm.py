@@ -461,7 +461,7 @@ def finalise_one(problem, u, prep, m_eff, fixed, sandwich):
     return phys, se, loss, rms, code
 
 
-def finalise_state(problem, u, cost, A, meat, m_eff, n_res, fixed, sandwich):
+def finalise_state(problem, u, cost, A, meat, m_eff, n_res, fixed, sandwich, with_cov=False):
     """:func:`finalise_one` from batch-lm's carried quantities at the final ``u`` (no model
     evaluation): the transforms act entry by entry, ``x_i = t_i(u_i)``, so the physical
     Jacobian is ``J_u D^-1`` with ``D = diag(dx/du)`` and ``J_x^T J_x = D^-1 (J_u^T J_u) D^-1``
@@ -469,9 +469,11 @@ def finalise_state(problem, u, cost, A, meat, m_eff, n_res, fixed, sandwich):
     transforms. A parameter pushed so far onto its bound that ``D`` underflows to 0 has a zero
     column (code 2 of :func:`~brdf_fit.fitting.problem.stderr_codes`; fit_batch reports it at
     bound, standard error NaN). The loss is
-    the carried one and ``rms = sqrt(2 loss / n_res)``, ``n_res = M C``."""
+    the carried one and ``rms = sqrt(2 loss / n_res)``, ``n_res = M C``. ``with_cov``: the
+    covariance of the physical parameters (p, p) is returned last as well."""
     prob = problem.with_fixed(fixed)
     phys = prob.unflatten(u)
+    cov = jnp.zeros((u.shape[0], u.shape[0]), u.dtype)
     if u.shape[0]:
         def flat(v):
             return prob.layout.join(prob.unflatten(v))
@@ -485,4 +487,5 @@ def finalise_state(problem, u, cost, A, meat, m_eff, n_res, fixed, sandwich):
     else:
         se = jnp.zeros(0, u.dtype)
         code = jnp.zeros(0, jnp.int32)
-    return phys, se, cost, jnp.sqrt(2.0 * cost / n_res), code
+    out = (phys, se, cost, jnp.sqrt(2.0 * cost / n_res), code)
+    return (*out, cov) if with_cov else out

@@ -193,7 +193,7 @@ def _programs(problem: FitProblem, n_channels: int, sandwich: bool) -> _Programs
                               "update"), returns_state=True),
         converged=_on_state(kept(lambda t: _gauss_newton_done(_state(t)), "converged")),
         finish=kept(lambda u, cost, A, meat, m_eff, n_res, fx: _lm.finalise_state(
-            P(fx), u, cost, A, meat, m_eff, n_res, fx, sandwich), "finish"),
+            P(fx), u, cost, A, meat, m_eff, n_res, fx, sandwich, with_cov=True), "finish"),
     )
     _PROGRAMS[key] = got
     return got
@@ -321,15 +321,16 @@ def converged_at_bounds(problem: FitProblem, state) -> bool:
 
 def finish_chunked(problem: FitProblem, sol: ChunkedSolution, n_channels: int, m_eff: int,
                    n_res: int, sandwich: bool):
-    """``(physical parameters, standard errors (flat), loss, residual rms, stderr codes)`` of
-    a :class:`ChunkedSolution` (:func:`brdf_fit.fitting._lm.finalise_state`: from the summed
-    normal equations, no further pass over the data); ``m_eff`` residuals carry weight, the
-    rms is over ``n_res``."""
+    """``(physical parameters, standard errors (flat), loss, residual rms, stderr codes,
+    covariance (p, p))`` of a :class:`ChunkedSolution` (:func:`brdf_fit.fitting._lm.
+    finalise_state`: from the summed normal equations, no further pass over the data);
+    ``m_eff`` residuals carry weight, the rms is over ``n_res``."""
     progs = _programs(problem, n_channels, sandwich)
     dtype = sol.u.dtype
-    phys, se, cost, rms, code = progs.finish(
+    phys, se, cost, rms, code, cov = progs.finish(
         jnp.asarray(sol.u), jnp.asarray(sol.cost, dtype), jnp.asarray(sol.A),
         jnp.asarray(sol.meat), jnp.asarray(m_eff, dtype), jnp.asarray(max(n_res, 1), dtype),
         problem.fixed)
     return ({k: np.asarray(v) for k, v in phys.items()}, np.asarray(se), float(cost),
-            float(rms) if math.isfinite(float(rms)) else float("nan"), np.asarray(code))
+            float(rms) if math.isfinite(float(rms)) else float("nan"), np.asarray(code),
+            np.asarray(cov))

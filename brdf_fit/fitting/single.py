@@ -90,7 +90,7 @@ from brdf_fit.fitting.solvers import (
 
 __all__ = ["FitResult", "fit", "solve", "covariance", "covariance_normal", "METRICS", "SOLVERS",
            "RELATIVE_FLOOR", "Transform", "FitError", "FitProblem", "at_bound", "bucket",
-           "dense_bucket", "BUCKETS_PER_OCTAVE", "MIN_BUCKET"]
+           "dense_bucket", "BUCKETS_PER_OCTAVE", "MIN_BUCKET", "correlation", "STRONG_CORRELATION"]
 
 
 def __getattr__(name: str):
@@ -100,6 +100,32 @@ def __getattr__(name: str):
 
 
 # ----------------------------------------------------------------------------- results
+
+
+#: the magnitude of correlation from which :meth:`FitResult.strongly_correlated` names a pair:
+#: at 0.99 the better-determined combination of the two (their sum or difference, scaled) has a
+#: standard error sqrt((1 - r) / (1 + r)) = 0.07 of the worse one's, i.e. the data fix one
+#: combination some 14 times better than the other
+STRONG_CORRELATION = 0.99
+
+
+def correlation(cov, codes) -> np.ndarray:
+    """The correlation matrix of ``cov`` (p, p), NaN in the rows and columns of the entries
+    whose ``codes`` (:func:`brdf_fit.fitting.problem.stderr_codes`, at-bound flags included)
+    are not 0 or whose variance is not positive; all NaN when ``cov`` is None."""
+    codes = np.asarray(codes)
+    p = codes.size
+    if cov is None:
+        return np.full((p, p), np.nan)
+    cov = np.asarray(cov, float)
+    var = np.diagonal(cov)
+    ok = (codes == 0) & np.isfinite(var) & (var > 0)
+    s = np.sqrt(np.where(ok, var, 1.0))
+    with np.errstate(invalid="ignore"):
+        c = np.clip(cov / (s[:, None] * s[None, :]), -1.0, 1.0)
+    c = np.where(ok[:, None] & ok[None, :], 0.5 * (c + c.T), np.nan)  # exactly symmetric
+    np.fill_diagonal(c, np.where(ok, 1.0, np.nan))
+    return c
 
 
 @dataclasses.dataclass
@@ -134,6 +160,25 @@ class FitResult:
     #: relative standard error above :data:`~brdf_fit.fitting.problem.UNDETERMINED_REL_STDERR`,
     #: or not identifiable), labelled ``name`` or ``name[channel]``, e.g. ``("eta[R]", "k[R]")``
     undetermined: tuple[str, ...] = ()
+    #: correlation matrix of the free entries' estimates (their covariance, the one the standard
+    #: errors come from, scaled to unit diagonal), in the order of ``correlation_labels``; NaN in
+    #: the rows and columns of entries whose standard error is undefined. Two entries
+    #: correlated near +-1 are determined as a combination, not each on its own (a conductor's
+    #: eta and k where the data fix only the reflectance they give)
+    correlation: np.ndarray | None = None
+    correlation_labels: tuple[str, ...] = ()
+
+    def strongly_correlated(self, threshold: float = STRONG_CORRELATION):
+        """``[(label_a, label_b, r), ...]``: the pairs of entries whose correlation reaches
+        ``threshold`` in magnitude, strongest first."""
+        if self.correlation is None:
+            return []
+        c = np.asarray(self.correlation)
+        labels = self.correlation_labels
+        pairs = [(labels[i], labels[j], float(c[i, j])) for i in range(len(labels))
+                 for j in range(i + 1, len(labels))
+                 if np.isfinite(c[i, j]) and abs(c[i, j]) >= threshold]
+        return sorted(pairs, key=lambda t: -abs(t[2]))
 
     def to_dict(self) -> dict:
         def tolist(v):
@@ -158,6 +203,9 @@ class FitResult:
             "undetermined": list(self.undetermined),
             "message": self.message,
             "checks": [c.to_dict() for c in self.checks],
+            "correlation": ({"labels": list(self.correlation_labels),
+                             "matrix": json_floats(self.correlation)}
+                            if self.correlation is not None else None),
             # only where some standard error is undefined (null in "stderr"): the reasons
             **({"stderr_note": {k: np.asarray(v).tolist() for k, v in self.stderr_note.items()}}
                if self.stderr_note else {}),
@@ -282,16 +330,17 @@ NOT_CONVERGED_ADVICE = ("; try a start nearer the answer (init), holding fixed w
 
 
 def _dense_stderr(jitted, u, arrays, fx, real: int, m_eff: int, sandwich: bool, p: int):
-    """``(physical parameters, standard errors (flat), residual rms, stderr codes, finite)``
-    of the dense path at ``u``: the residuals and their Jacobian in the physical parameters,
-    jitted (eagerly, each of the ~90 operations compiles on its own: 3-5 s per fit, measured);
-    the padded samples' residuals (zero) and Jacobian rows are dropped (``real`` rows)."""
+    """``(physical parameters, standard errors (flat), residual rms, stderr codes, finite,
+    covariance (p, p) or None)`` of the dense path at ``u``: the residuals and their Jacobian
+    in the physical parameters, jitted (eagerly, each of the ~90 operations compiles on its
+    own: 3-5 s per fit, measured); the padded samples' residuals (zero) and Jacobian rows are
+    dropped (``real`` rows)."""
     phys, flat_phys, r, J = jitted.finish(u, arrays, fx)
     r = np.asarray(r)[:real]
     params = {k: np.asarray(v) for k, v in phys.items()}
     rms = float(np.sqrt(np.mean(r**2))) if r.size else 0.0
     if not p:
-        return params, np.zeros(0), rms, np.zeros(0, int), True
+        return params, np.zeros(0), rms, np.zeros(0, int), True, None
     J = np.asarray(J)[:real]
     finite = bool(np.all(np.isfinite(J)) and np.all(np.isfinite(r)))
     # J^T J of finite J may still overflow: stderr_codes tests the product itself
@@ -302,8 +351,8 @@ def _dense_stderr(jitted, u, arrays, fx, real: int, m_eff: int, sandwich: bool, 
         cov = covariance(J, r, m_eff, sandwich=sandwich) if finite else None
         se = np.sqrt(np.maximum(np.diag(cov), 0.0)) if finite else np.full(p, np.nan)
     except np.linalg.LinAlgError:
-        se = np.full(p, np.nan)
-    return params, se, rms, codes, finite
+        cov, se = None, np.full(p, np.nan)
+    return params, se, rms, codes, finite, cov
 
 
 def fit(
@@ -427,8 +476,8 @@ def fit(
             if best is None or sol.cost < best.cost:
                 best = sol
         ok, steps, stopped = best.converged, best.steps, best.stopped
-        params, se, loss, rms, codes = _chunked.finish_chunked(problem, best, C, m_eff,
-                                                              n_used * C, sandwich)
+        params, se, loss, rms, codes, cov = _chunked.finish_chunked(problem, best, C, m_eff,
+                                                                   n_used * C, sandwich)
         finite = bool(np.isfinite(best.A).all() and math.isfinite(best.cost))
     else:
         arrays = _pad(arrays, n_used, pad_to)
@@ -439,8 +488,8 @@ def fit(
             if best is None or loss < best[1]:
                 best = (sol, loss)
         (u, ok, steps), loss = best
-        params, se, rms, codes, finite = _dense_stderr(jitted, u, arrays, fx, n_used * C,
-                                                       m_eff, sandwich, p)
+        params, se, rms, codes, finite, cov = _dense_stderr(jitted, u, arrays, fx, n_used * C,
+                                                            m_eff, sandwich, p)
     stderr, bound_names = {}, ()
     if p:
         bound = layout.at_bound(params)
@@ -495,6 +544,9 @@ def fit(
             for lab, bad in zip(entry_labels(n, np.shape(params[n]), tuple(data.channels)),
                                 undetermined(params[n], se, notes.get(n)).reshape(-1),
                                 strict=True) if bad),
+        correlation=correlation(cov, codes) if p else None,
+        correlation_labels=tuple(lab for n in layout.names for lab in entry_labels(
+            n, np.shape(params[n]), tuple(data.channels))),
     )
     if checks:
         from brdf_fit.verify.checks import run_checks

@@ -63,6 +63,7 @@ def test_chunked_equals_dense(sigma, monkeypatch):
     np.testing.assert_allclose(big.residual_rms, dense.residual_rms, rtol=1e-9)
     assert big.n_samples == dense.n_samples == N_SAMPLES
     assert big.undetermined == dense.undetermined == ()
+    np.testing.assert_allclose(big.correlation, dense.correlation, rtol=0, atol=1e-6)
 
 
 def test_chunk_layout():
