@@ -6,7 +6,6 @@ the reflectance they give)."""
 import jax
 import jax.numpy as jnp
 import numpy as np
-import pytest
 
 from brdf_fit import registry
 from brdf_fit.data import GonioData
