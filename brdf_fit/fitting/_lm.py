@@ -27,8 +27,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from brdf_fit.fitting import solvers as _solvers
 from brdf_fit.fitting.problem import stderr_codes
-from brdf_fit.fitting.solvers import covariance_normal, solve
+from brdf_fit.fitting.solvers import covariance_normal, hc3_weights, solve
 
 __all__ = ["LMState", "gather", "data_axes", "lanes", "directions", "tangents", "normal",
            "quad", "lm_init", "lm_step", "lm_propose", "lm_update",
@@ -438,10 +439,11 @@ def optx_chunk(problem, solver, rtol, atol, n_steps, idx, data, state: LMState,
 
 
 def finalise_one(problem, u, prep, m_eff, fixed, sandwich):
-    """Physical parameters, standard errors (fit()'s estimator: pooled s^2 with sigma, HC1
-    sandwich without), loss and residual rms at the final ``u``. The residual and its Jacobian
-    come from one structured forward-mode pass (:func:`directions`) in the physical
-    parameters."""
+    """Physical parameters, standard errors (fit()'s estimator: pooled s^2 with sigma, the
+    :data:`~brdf_fit.fitting.solvers.SANDWICH` estimator without), loss and residual rms at the
+    final ``u``. The residual and its Jacobian come from one structured forward-mode pass
+    (:func:`directions`) in the physical parameters; HC3's leverage of residual ``(m, c)`` is
+    ``T_mc^T Q_c (J^T J)^+ Q_c^T T_mc`` (its Jacobian row through the direction map ``Q``)."""
     prob = problem.with_fixed(fixed)
     phys = prob.unflatten(u)
     flat = prob.layout.join(phys, dtype=u.dtype)
@@ -449,8 +451,18 @@ def finalise_one(problem, u, prep, m_eff, fixed, sandwich):
     r, T = tangents(problem, dirs, flat, prep, fixed, physical=True)
     if flat.shape[0]:
         A, _ = normal(T, r, Q)
-        meat = normal(T * r, r, Q)[0] if sandwich else None
-        cov = covariance_normal(A, meat, jnp.sum(r * r), m_eff.astype(u.dtype))
+        hc3 = sandwich and _solvers.SANDWICH == "HC3"  # (read when traced)
+        if hc3:
+            Qd = jnp.asarray(Q, r.dtype)
+            finite = jnp.all(jnp.isfinite(A))
+            bread = jnp.linalg.pinv(jnp.where(finite, A, jnp.eye(A.shape[-1], dtype=A.dtype)))
+            h = jnp.einsum("amc,cap,pq,cbq,bmc->mc", T, Qd, bread, Qd, T)
+            w = hc3_weights(r, h, jnp)
+            meat = normal(T * w, w, Q)[0]
+        else:
+            meat = normal(T * r, r, Q)[0] if sandwich else None
+        cov = covariance_normal(A, meat, jnp.sum(r * r), m_eff.astype(u.dtype),
+                                dof_factor=not hc3)
         se = jnp.sqrt(jnp.maximum(jnp.diagonal(cov), 0.0))
         code = stderr_codes(A, jnp.all(jnp.isfinite(A)) & jnp.all(jnp.isfinite(r)), jnp)
     else:
@@ -469,7 +481,9 @@ def finalise_state(problem, u, cost, A, meat, m_eff, n_res, fixed, sandwich, wit
     transforms. A parameter pushed so far onto its bound that ``D`` underflows to 0 has a zero
     column (code 2 of :func:`~brdf_fit.fitting.problem.stderr_codes`; fit_batch reports it at
     bound, standard error NaN). The loss is
-    the carried one and ``rms = sqrt(2 loss / n_res)``, ``n_res = M C``. ``with_cov``: the
+    the carried one and ``rms = sqrt(2 loss / n_res)``, ``n_res = M C``. The sandwich here is
+    HC1 (no leverages without a pass over the data): the estimator of the chunked path, whose
+    leverages are ~p/m (:data:`~brdf_fit.fitting.solvers.SANDWICH`). ``with_cov``: the
     covariance of the physical parameters (p, p) is returned last as well."""
     prob = problem.with_fixed(fixed)
     phys = prob.unflatten(u)

@@ -127,6 +127,7 @@ import numpy as np
 
 from brdf_fit.data import MAX_VALUE
 from brdf_fit.fitting import guess as _guess
+from brdf_fit.fitting import solvers as _solvers
 from brdf_fit.fitting._lm import LMState
 from brdf_fit.fitting._schedule import (
     CHUNK_SCHEDULE,
@@ -473,7 +474,10 @@ def fit_batch(
     run_chunks(run, state, data, fixed, schedule, max_steps, solver, chunk_steps is None,
                rounds, block, progress)
     ts = time.perf_counter()
-    if solver == "batch-lm":  # from the carried normal equations, no model evaluation
+    if solver == "batch-lm" and (sg is not None or _solvers.SANDWICH != "HC3"):
+        # from the carried normal equations, no model evaluation (the pooled estimator needs
+        # nothing else; the sandwich's HC3 needs each residual's leverage: one more pass, the
+        # cost of one step, below)
         args = (state.u, state.cost, state.A, state.meat, m_eff, np.full(B, M * C, dtype),
                 fixed)  # padded to the data's rows: one compilation per block-size class
         out = run.finalise_state(*jax.tree.map(lambda a: _pad_rows(a, B, rows), args))

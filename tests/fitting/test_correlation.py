@@ -40,9 +40,10 @@ def test_correlation_of_a_covariance():
 
 
 def test_a_fit_reports_the_correlation_of_its_standard_errors():
-    """An independent reading: the HC1 sandwich covariance (the estimator without sigma, module
-    docstring of fitting.single) from a central-difference Jacobian of the log residuals
-    ``log1p(f cos_i) - log1p(y cos_i)`` in the physical parameters, formed here with NumPy."""
+    """An independent reading: the HC3 sandwich covariance (the estimator without sigma,
+    fitting.solvers.SANDWICH; MacKinnon and White 1985) from a central-difference Jacobian of the
+    log residuals ``log1p(f cos_i) - log1p(y cos_i)`` in the physical parameters, formed here
+    with NumPy."""
     truth = {"alpha": 0.23, "f0": [0.9, 0.6, 0.3]}
     d = _data("ggx", truth, 80.0, seed=1)
     r = fit(d, "ggx")
@@ -61,9 +62,9 @@ def test_a_fit_reports_the_correlation_of_its_standard_errors():
     J = np.stack([(residuals(x + h * e) - residuals(x - h * e)) / (2 * h)
                   for e in np.eye(x.size)], -1)
     res = residuals(x)
-    m, p = res.size, x.size
     bread = np.linalg.inv(J.T @ J)
-    cov = m / (m - p) * bread @ (J.T @ (J * res[:, None] ** 2)) @ bread
+    leverage = np.array([row @ bread @ row for row in J])
+    cov = bread @ (J.T @ (J * (res / (1 - leverage))[:, None] ** 2)) @ bread
     s = np.sqrt(np.diag(cov))
     np.testing.assert_allclose(s, [r.stderr["alpha"], *r.stderr["f0"]], rtol=1e-5)
     np.testing.assert_allclose(r.correlation, cov / np.outer(s, s), atol=1e-6)

@@ -14,7 +14,7 @@ from _helpers import PEAK_RSS_CODE, peak_kib, random_dirs
 
 from brdf_fit import registry
 from brdf_fit.data import GonioData
-from brdf_fit.fitting import chunked
+from brdf_fit.fitting import chunked, solvers
 from brdf_fit.fitting.problem import FitProblem
 from brdf_fit.fitting.single import _arrays, fit
 
@@ -49,8 +49,10 @@ def test_chunked_equals_dense(sigma, monkeypatch):
     """Same optimum, standard errors (the HC1 sandwich without sigma, the pooled estimator with
     it), loss and rms as the dense optimistix path, on 2% noise from a start away from the
     truth: the sums are the dense quantities reordered, so they agree to rounding of the
-    optimum (tolerances 1e-10)."""
+    optimum (tolerances 1e-10). The chunked path's sandwich is HC1 (no leverages without a
+    second pass; fitting.solvers.SANDWICH), so the dense reference is told to use HC1 too."""
     d = _data(0.02, sigma)
+    monkeypatch.setattr(solvers, "SANDWICH", "HC1")  # the dense path reads it on the host
     dense = fit(d, "ggx", init=START)
     monkeypatch.setattr(chunked, "CHUNKED_FROM", 1)
     monkeypatch.setattr(chunked, "CHUNK", SMALL_CHUNK)
