@@ -55,6 +55,7 @@ bench: $(STAMP)         ## re-run the committed benchmarks (results in benchmark
 	$(BIN)/python benchmarks/bench_phong_normaliser.py
 	$(BIN)/python benchmarks/bench_catalogue_cost.py
 	$(BIN)/python benchmarks/bench_fit_batch.py
+	$(BIN)/python benchmarks/bench_coverage.py
 	$(BIN)/python benchmarks/bench_select.py
 	$(BIN)/python benchmarks/bench_latency.py
 	$(BIN)/python benchmarks/report.py   # results/REPORT.md + results/report/*.png
