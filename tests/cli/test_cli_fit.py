@@ -90,7 +90,7 @@ def test_round_trip_csv(csv_data, capsys):
     fields = FitResult.__dataclass_fields__
     assert set(r) == {"model", "params", "stderr", "fixed", "converged", "steps", "metric",
                       "loss", "residual_rms", "n_samples", "n_params", "seconds", "starts",
-                      "message", "checks", "at_bound", "undetermined"}
+                      "message", "checks", "at_bound", "undetermined", "correlation"}
     assert {"model_name", "params", "stderr", "converged", "metric", "residual_rms"} <= set(fields)
     assert r["model"] == "ggx" and r["metric"] == "log" and r["n_params"] == 4
     for k, v in TRUTH.items():

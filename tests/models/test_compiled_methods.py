@@ -32,7 +32,10 @@ def test_every_model_class_has_its_methods_compiled():
     assert len(classes) > 20
     for cls in classes:
         for name in ("eval", "pdf", "sample"):
-            assert hasattr(getattr(cls, name), "raw"), f"{cls.__name__}.{name}"
+            method = getattr(cls, name)
+            if getattr(method, "__isabstractmethod__", False):
+                continue  # an abstract base between AbstractBRDF and its models
+            assert hasattr(method, "raw"), f"{cls.__name__}.{name}"
 
 
 def test_an_eager_eval_pdf_and_sample_are_one_program_each():
