@@ -119,8 +119,9 @@ def solve(problem: FitProblem, u0, arrays, solver="lm", rtol=1e-10, atol=1e-10, 
 #: (J^T J)^+ J^T diag(r^2) J (J^T J)^+`` (White 1980 with a degrees-of-freedom factor). A
 #: residual of a sample that pulls the fit toward itself (high leverage: few samples per
 #: parameter, a sample alone near the specular peak) understates that sample's noise, and HC1
-#: takes it at face value: on two dozen directions with 2% noise its 95% intervals covered a
-#: GGX fit's truth in 55-86% of 200 draws, HC3's in 80-96% (benchmarks/bench_coverage.py).
+#: takes it at face value: on two dozen directions with 2% noise its 95% intervals covered
+#: GGX's and Beckmann's truth in 23.5-70.5% of 200 draws, HC3's in 87-98%
+#: (benchmarks/results/coverage.md).
 #: Only the chunked path of large data (fitting.chunked, at least 2^17 residuals: leverages
 #: ~p/m, below 1e-4 on average) keeps HC1, which needs no second pass over the data.
 SANDWICH = "HC3"
