@@ -25,8 +25,8 @@ tails), and a pooled ``s^2`` made 3-sigma intervals cover the truth in only 57-8
 after H. White, Econometrica 48(4), 1980; :data:`brdf_fit.fitting.solvers.SANDWICH` says why
 not HC1's ``m/(m - p)`` factor, whose intervals were up to 4.4x too narrow on 24 directions,
 benchmarks/results/coverage.md; large data solved in chunks keep HC1, their leverages being
-~p/m). A standard error is undefined (NaN, the reason in ``FitResult.stderr_note``) for a parameter at an end of its
-interval, for one the data do not determine (a vanishing Jacobian column or a rank-deficient
+~p/m). A standard error is undefined (NaN, the reason in ``FitResult.stderr_note``) for a
+parameter at an end of its interval, for one the data do not determine (a vanishing Jacobian column or a rank-deficient
 direction of ``J^T J``: :func:`brdf_fit.fitting.problem.stderr_codes`; ``pinv`` would drop that
 direction and report a confident, meaningless number), and for every parameter when the
 residuals or ``J`` are not finite (the fit then ends not converged).
