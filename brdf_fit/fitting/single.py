@@ -15,21 +15,22 @@ zenith (either direction).
 
 Standard errors come from the Jacobian ``J`` of the residuals with respect to the physical
 parameters at the optimum (:func:`covariance`). With per-sample ``sigma`` the residuals are
-standardised and ``cov = s^2 (J^T J)^-1``, ``s^2 = RSS/(m - p)`` (the reduced residual variance,
-as ``scipy.optimize.curve_fit`` does by default). Without ``sigma`` the residuals' variance is not
-constant (1% multiplicative noise gives a log-metric residual of ~1% at the peak and ~0 in the dark
-tails), and a pooled ``s^2`` made 3-sigma intervals cover the truth in only 57-82% of 200 trials
-(measured for ggx, beckmann, modified-phong); there a heteroscedasticity-consistent sandwich
+standardised and ``cov = s^2 (J^T J)^-1``, ``s^2 = RSS/(m - p)`` (the reduced residual
+variance, as ``scipy.optimize.curve_fit`` does by default). Without ``sigma`` the residuals'
+variance is not constant (1% multiplicative noise gives a log-metric residual of ~1% at the
+peak and ~0 in the dark tails), and a pooled ``s^2`` made 3-sigma intervals cover the truth in
+only 57-82% of 200 trials (measured for ggx, beckmann, modified-phong); there a
+heteroscedasticity-consistent sandwich
 ``cov = (J^T J)^-1 J^T diag(r_i^2 / (1 - h_i)^2) J (J^T J)^-1`` is used, with the leverages
-``h_i = J_i (J^T J)^-1 J_i^T`` (HC3: J. G. MacKinnon and H. White, J. Econometrics 29, 1985;
-after H. White, Econometrica 48(4), 1980; :data:`brdf_fit.fitting.solvers.SANDWICH` says why
-not HC1's ``m/(m - p)`` factor, whose intervals were up to 4.4x too narrow on 24 directions,
-benchmarks/results/coverage.md; large data solved in chunks keep HC1, their leverages being
-~p/m). A standard error is undefined (NaN, the reason in ``FitResult.stderr_note``) for a
-parameter at an end of its interval, for one the data do not determine (a vanishing Jacobian column or a rank-deficient
-direction of ``J^T J``: :func:`brdf_fit.fitting.problem.stderr_codes`; ``pinv`` would drop that
-direction and report a confident, meaningless number), and for every parameter when the
-residuals or ``J`` are not finite (the fit then ends not converged).
+``h_i = J_i (J^T J)^-1 J_i^T`` (HC3: J. G. MacKinnon and H. White, J. Econometrics 29, 1985; after H. White, Econometrica 48(4), 1980;
+:data:`brdf_fit.fitting.solvers.SANDWICH` says why not HC1's ``m/(m - p)`` factor, whose
+intervals were up to 4.4x too narrow on 24 directions, benchmarks/results/coverage.md; large
+data solved in chunks keep HC1, their leverages being ~p/m). A standard error is undefined
+(NaN, the reason in ``FitResult.stderr_note``) for a parameter at an end of its interval, for
+one the data do not determine (a vanishing Jacobian column or a rank-deficient direction of
+``J^T J``: :func:`brdf_fit.fitting.problem.stderr_codes`; ``pinv`` would drop that direction
+and report a confident, meaningless number), and for every parameter when the residuals or
+``J`` are not finite (the fit then ends not converged).
 
 The optimisation itself (:func:`solve`) is pure JAX: it runs under ``jit`` and ``vmap`` and is
 differentiable with respect to the data through optimistix's implicit adjoint.
