@@ -22,7 +22,8 @@ peak and ~0 in the dark tails), and a pooled ``s^2`` made 3-sigma intervals cove
 only 57-82% of 200 trials (measured for ggx, beckmann, modified-phong); there a
 heteroscedasticity-consistent sandwich
 ``cov = (J^T J)^-1 J^T diag(r_i^2 / (1 - h_i)^2) J (J^T J)^-1`` is used, with the leverages
-``h_i = J_i (J^T J)^-1 J_i^T`` (HC3: J. G. MacKinnon and H. White, J. Econometrics 29, 1985; after H. White, Econometrica 48(4), 1980;
+``h_i = J_i (J^T J)^-1 J_i^T`` (HC3: J. G. MacKinnon and H. White, J. Econometrics 29, 1985;
+after H. White, Econometrica 48(4), 1980;
 :data:`brdf_fit.fitting.solvers.SANDWICH` says why not HC1's ``m/(m - p)`` factor, whose
 intervals were up to 4.4x too narrow on 24 directions, benchmarks/results/coverage.md; large
 data solved in chunks keep HC1, their leverages being ~p/m). A standard error is undefined
