@@ -18,6 +18,7 @@ from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
 from brdf_fit.fitting import guess as _guess
+from brdf_fit.fitting import solvers as _solvers
 from brdf_fit.fitting._lm import (
     LMState,
     directions,
@@ -125,9 +126,17 @@ class Runner:
         #: lane counts are multiples of this (every device holds whole groups)
         self.unit = (group or 1) * self.ndev
         sandwich = not sigma
+        #: whether the standard errors come from batch-lm's carried normal equations
+        #: (finalise_state: the pooled estimator, or HC1) rather than from a pass of their own
+        #: (finalise_one: HC3 needs each residual's leverage); only then is the sandwich's meat
+        #: summed at every step
+        self.finalise_carried = solver == "batch-lm" and (
+            not sandwich or _solvers.SANDWICH != "HC3")
+        carry_meat = sandwich and self.finalise_carried
+        self._carry_meat = carry_meat
         if solver == "batch-lm":
             def chunk(n_steps, i, d, s, fx):
-                return lm_chunk(problem, n_steps, group, sandwich,
+                return lm_chunk(problem, n_steps, group, carry_meat,
                                 i, d, s, fx)
         else:
             def chunk(n_steps, i, d, s, fx):
@@ -141,10 +150,10 @@ class Runner:
             return grouped(one, (u, m_eff, fx), group, i, d)
 
         def init(i, d, u, fx):
-            return lm_init(problem, group, sandwich, i, d, u, fx)
+            return lm_init(problem, group, carry_meat, i, d, u, fx)
 
         def fin_state(u, cost, A, meat, m_eff, n_res, fx):
-            return jax.vmap(lambda *t: finalise_state(problem, *t, sandwich))(
+            return jax.vmap(lambda *t: finalise_state(problem, *t, carry_meat))(
                 u, cost, A, meat, m_eff, n_res, fx)
         self.finalise_state = jax.jit(fin_state)
 
@@ -219,7 +228,7 @@ class Runner:
         if fn is None:
             problem, group = self._problem, self.group
             lm = self.solver == "batch-lm"
-            sandwich = not self._sigma
+            carry_meat = self._carry_meat
 
             def best(c, a, fx):
                 L = _guess.candidate_losses(problem, c, a, fx, lay)
@@ -231,7 +240,7 @@ class Runner:
                 if not lm:
                     return u, ()
                 dq = directions(problem, a[1][3].shape[-1])
-                return u, lanes(lambda x, y, z: quad(problem, dq, x, y, z, sandwich), 1,
+                return u, lanes(lambda x, y, z: quad(problem, dq, x, y, z, carry_meat), 1,
                                 (u, a[1], fx))
 
             def guess(i, d, c, fx):
@@ -254,7 +263,7 @@ class Runner:
         if fn is None:
             problem, group = self._problem, self.group
             lm = self.solver == "batch-lm"
-            sandwich = not self._sigma
+            carry_meat = self._carry_meat
 
             def starts(i, d, cands, fx, sub):
                 def take(x):  # all samples (the usual case): no gather
@@ -278,7 +287,7 @@ class Runner:
                 fxl = {k: jnp.broadcast_to(v, (i.shape[0], *v.shape)) for k, v in fx.items()}
 
                 def q(t, a):
-                    return lanes(lambda x, y, z: quad(problem, dq, x, y, z, sandwich), 1,
+                    return lanes(lambda x, y, z: quad(problem, dq, x, y, z, carry_meat), 1,
                                  (t[0], a, t[1]))
                 return u, grouped(q, (u, fxl), group, i, d)
 
@@ -296,7 +305,7 @@ def runner(problem, solver, rtol, atol, shard, group, sigma) -> Runner:
         rtol = atol = None
     key = (problem.key, solver, rtol if rtol is None else float(rtol),
            atol if atol is None else float(atol), shard,
-           len(jax.local_devices()), group, sigma)
+           len(jax.local_devices()), group, sigma, _solvers.SANDWICH)
     r = _RUNNERS.get(key)
     if r is None:
         if len(_RUNNERS) >= MAX_RUNNERS:

@@ -127,7 +127,6 @@ import numpy as np
 
 from brdf_fit.data import MAX_VALUE
 from brdf_fit.fitting import guess as _guess
-from brdf_fit.fitting import solvers as _solvers
 from brdf_fit.fitting._lm import LMState
 from brdf_fit.fitting._schedule import (
     CHUNK_SCHEDULE,
@@ -474,7 +473,7 @@ def fit_batch(
     run_chunks(run, state, data, fixed, schedule, max_steps, solver, chunk_steps is None,
                rounds, block, progress)
     ts = time.perf_counter()
-    if solver == "batch-lm" and (sg is not None or _solvers.SANDWICH != "HC3"):
+    if run.finalise_carried:
         # from the carried normal equations, no model evaluation (the pooled estimator needs
         # nothing else; the sandwich's HC3 needs each residual's leverage: one more pass, the
         # cost of one step, below)
