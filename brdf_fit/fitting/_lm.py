@@ -29,7 +29,7 @@ import numpy as np
 
 from brdf_fit.fitting import solvers as _solvers
 from brdf_fit.fitting.problem import stderr_codes
-from brdf_fit.fitting.solvers import covariance_normal, hc3_weights, solve
+from brdf_fit.fitting.solvers import covariance_normal, hc3_weights, pinv_or_stand_in, solve
 
 __all__ = ["LMState", "gather", "data_axes", "lanes", "directions", "tangents", "normal",
            "quad", "lm_init", "lm_step", "lm_propose", "lm_update",
@@ -454,15 +454,15 @@ def finalise_one(problem, u, prep, m_eff, fixed, sandwich):
         hc3 = sandwich and _solvers.SANDWICH == "HC3"  # (read when traced)
         if hc3:
             Qd = jnp.asarray(Q, r.dtype)
-            finite = jnp.all(jnp.isfinite(A))
-            bread = jnp.linalg.pinv(jnp.where(finite, A, jnp.eye(A.shape[-1], dtype=A.dtype)))
+            bread = pinv_or_stand_in(A, jnp)
             h = jnp.einsum("amc,cap,pq,cbq,bmc->mc", T, Qd, bread, Qd, T)
             w = hc3_weights(r, h, jnp)
             meat = normal(T * w, w, Q)[0]
         else:
+            bread = None
             meat = normal(T * r, r, Q)[0] if sandwich else None
         cov = covariance_normal(A, meat, jnp.sum(r * r), m_eff.astype(u.dtype),
-                                dof_factor=not hc3)
+                                dof_factor=not hc3, bread=bread)
         se = jnp.sqrt(jnp.maximum(jnp.diagonal(cov), 0.0))
         code = stderr_codes(A, jnp.all(jnp.isfinite(A)) & jnp.all(jnp.isfinite(r)), jnp)
     else:

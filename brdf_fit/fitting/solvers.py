@@ -22,7 +22,8 @@ import numpy as np
 from brdf_fit.fitting.problem import FitProblem
 
 __all__ = ["SOLVERS", "solve", "covariance", "covariance_normal", "bucket", "dense_bucket",
-           "BUCKETS_PER_OCTAVE", "MIN_BUCKET", "SANDWICH", "LEVERAGE_FLOOR", "hc3_weights"]
+           "BUCKETS_PER_OCTAVE", "MIN_BUCKET", "SANDWICH", "LEVERAGE_FLOOR", "hc3_weights",
+           "pinv_or_stand_in"]
 
 
 def _quiet(*args, **kwargs):
@@ -131,6 +132,14 @@ SANDWICH = "HC3"
 LEVERAGE_FLOOR = 1e-8
 
 
+def pinv_or_stand_in(A, xp=np):
+    """``A^+``, or where ``A`` (p, p) is not finite the pseudo-inverse of the identity: a
+    harmless stand-in, never an SVD of inf/NaN (numpy's pinv spun for 14+ minutes on one); the
+    covariance made with it is NaN (:func:`covariance_normal`)."""
+    finite = xp.all(xp.isfinite(A))
+    return xp.linalg.pinv(xp.where(finite, A, xp.eye(A.shape[-1], dtype=A.dtype)))
+
+
 def hc3_weights(r, h, xp=np):
     """HC3's per-residual factors ``r / (1 - h)`` (:data:`SANDWICH`): the meat is
     ``J^T diag(w^2) J``."""
@@ -151,18 +160,19 @@ def covariance(J, r, m_eff, sandwich: bool):
         if SANDWICH == "HC1":
             Jr = J * r[:, None]
             return covariance_normal(A, Jr.T @ Jr, (r * r).sum(), m_eff)
-        finite = xp.all(xp.isfinite(A))
-        bread = xp.linalg.pinv(xp.where(finite, A, xp.eye(A.shape[-1], dtype=A.dtype)))
+        bread = pinv_or_stand_in(A, xp)
         h = xp.einsum("ip,pq,iq->i", J, bread, J)
         Jw = J * hc3_weights(r, h, xp)[:, None]
-        return covariance_normal(A, Jw.T @ Jw, (r * r).sum(), m_eff, dof_factor=False)
+        return covariance_normal(A, Jw.T @ Jw, (r * r).sum(), m_eff, dof_factor=False,
+                                 bread=bread)
 
 
-def covariance_normal(A, meat, rss, m_eff, dof_factor: bool = True):
+def covariance_normal(A, meat, rss, m_eff, dof_factor: bool = True, bread=None):
     """:func:`covariance` from the normal-equation quantities: ``A = J^T J`` (p, p), the
     sandwich's ``meat = J^T diag(r^2) J`` (None: the pooled estimator) and ``rss = sum r^2``
     (what the batch solver computes without forming ``J``). ``dof_factor``: HC1's
-    ``m_eff/(m_eff - p)`` on the sandwich (False: a meat already corrected, HC3's)."""
+    ``m_eff/(m_eff - p)`` on the sandwich (False: a meat already corrected, HC3's). ``bread``:
+    :func:`pinv_or_stand_in` of ``A`` where the caller has it already (HC3's leverages)."""
     xp = jnp if any(isinstance(x, jax.Array) for x in (A, meat, rss)) else np
     p = A.shape[-1]
     dof = max(int(m_eff) - p, 1) if isinstance(m_eff, int) else xp.maximum(m_eff - p, 1)
@@ -175,7 +185,7 @@ def covariance_normal(A, meat, rss, m_eff, dof_factor: bool = True):
     if xp is jnp:  # traced: the SVD runs on a harmless stand-in, the result is masked
         A = jnp.where(finite, A, jnp.eye(p, dtype=A.dtype))
         meat = None if meat is None else jnp.where(finite, meat, 0.0)
-    bread = xp.linalg.pinv(A)
+    bread = xp.linalg.pinv(A) if bread is None else bread
     factor = m_eff / dof if dof_factor else 1.0
     cov = rss / dof * bread if meat is None else factor * (bread @ meat @ bread)
     return cov if xp is np else jnp.where(finite, cov, jnp.nan)
