@@ -261,26 +261,21 @@ def solve_chunked(problem: FitProblem, u0, data: ChunkedData, n_channels: int,
     start = jax.tree.map(lambda x: jnp.asarray(x[0]), _lm.LMState.start(
         np.asarray(u0)[None], dtype, max_steps, rtol, atol))
 
-    def begin(u, rows, steps_so_far, lam=None):
-        """A fresh state at ``u`` with its sums on the chunks ``rows``; damping ``lam``
-        (None: the initial damping)."""
+    def begin(u, rows, steps_so_far, lam):
+        """A fresh state at ``u`` with its sums on the chunks ``rows`` and damping ``lam``."""
         cost, A, g, meat = progs.sums(jnp.asarray(u, dtype), prep, *rows, fx)
-        s = dataclasses.replace(start, u=jnp.asarray(u, dtype), steps=jnp.int32(steps_so_far),
-                                cost=cost, A=A, g=g, meat=meat)
-        return s if lam is None else dataclasses.replace(s, lam=lam)
+        return dataclasses.replace(start, u=jnp.asarray(u, dtype), lam=lam,
+                                   steps=jnp.int32(steps_so_far), cost=cost, A=A, g=g, meat=meat)
 
     coarse_steps, why = 0, ""
-    u = np.asarray(u0)
+    u, lam = np.asarray(u0), start.lam  # the initial damping
     c = data.coarse_chunks
     if c:
         rows = (jnp.int32(0), jnp.int32(c))
         state, coarse_steps, why = _run_stage(
-            progs, begin(u, rows, 0), prep, rows, fx, min(COARSE_MAX_STEPS, max_steps),
+            progs, begin(u, rows, 0, lam), prep, rows, fx, min(COARSE_MAX_STEPS, max_steps),
             deadline, progress, "coarse")
-        u = np.asarray(state.u)
-        lam = state.lam
-    else:
-        lam = None
+        u, lam = np.asarray(state.u), state.lam  # the full stage goes on with the subset's
     rows = (jnp.int32(c), jnp.int32(c + data.n_chunks))
     state, steps = begin(u, rows, coarse_steps, lam), 0
     if why != "time_limit":
