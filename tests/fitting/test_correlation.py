@@ -6,6 +6,7 @@ the reflectance they give)."""
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _helpers import random_dirs
 
 from brdf_fit import registry
 from brdf_fit.data import GonioData
@@ -14,16 +15,10 @@ from brdf_fit.fitting.single import STRONG_CORRELATION, correlation, fit
 N = 400
 
 
-def _dirs(rng, n, max_deg):
-    cos_t = np.cos(np.radians(rng.uniform(0.0, max_deg, n)))
-    phi = rng.uniform(0.0, 2.0 * np.pi, n)
-    sin_t = np.sqrt(1.0 - cos_t**2)
-    return np.stack([sin_t * np.cos(phi), sin_t * np.sin(phi), cos_t], -1)
-
-
 def _data(name, truth, max_deg, seed, noise=0.02):
     rng = np.random.default_rng(seed)
-    wi, wo = _dirs(rng, N, max_deg), _dirs(rng, N, max_deg)
+    lo = np.cos(np.radians(max_deg))  # zeniths up to max_deg
+    wi, wo = random_dirs(rng, N, lo), random_dirs(rng, N, lo)
     m = registry.get(name).build(**{k: np.asarray(v) for k, v in truth.items()})
     v = np.asarray(m.eval(wi, wo)) * np.exp(noise * rng.standard_normal((N, 3)))
     return GonioData(wi, wo, v, channels=("R", "G", "B"))
