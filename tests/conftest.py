@@ -208,3 +208,42 @@ if os.environ.get(COMPILE_REPORT_ENV):
         with open(os.environ[COMPILE_REPORT_ENV], "a", encoding="utf-8") as fh:
             for path, row in sorted(_per_file.items()):
                 fh.write(json.dumps({"file": path, "worker": worker, **row}) + "\n")
+
+
+# ----------------------------------------------------------------------------- worker crashes
+#: times one test may crash its pytest-xdist worker (the process dies: SIGSEGV, ...) before
+#: the crash counts as its failure. A native crash of jaxlib 0.10.2 inside an XLA compile has
+#: killed a worker of the slow set twice in about six runs (CI of stop 49 and a run the session
+#: before), both times in test_fit_recovery.py::test_noise_free_recovery[gltf-pbr-sheen],
+#: which passes alone and in its file; its cause is not found (issue 41's note). With
+#: ``--dist loadfile`` xdist already queues the crashed test again, with the rest of its file,
+#: on a fresh worker; this hook turns the first crash's report into a rerun (listed in the
+#: summary, "N rerun" in the last line) instead of a failure, so the test must then pass in a
+#: fresh process, and a second crash of the same test fails it. An assertion's failure is never
+#: rerun.
+CRASH_RERUNS = 1
+_crashed: dict[str, int] = {}
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_handlecrashitem(crashitem, report, sched):
+    from xdist.scheduler import LoadScopeScheduling  # loadfile's base: it queues the test again
+
+    _crashed[crashitem] = _crashed.get(crashitem, 0) + 1
+    if _crashed[crashitem] <= CRASH_RERUNS and isinstance(sched, LoadScopeScheduling):
+        report.outcome = "rerun"
+    return True
+
+
+def pytest_report_teststatus(report, config):
+    if report.outcome == "rerun":
+        return "rerun", "R", ("RERUN", {"yellow": True})
+    return None
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus, config):
+    reruns = terminalreporter.stats.get("rerun", [])
+    if reruns:
+        terminalreporter.section("tests that crashed their worker and ran again", yellow=True)
+        for rep in reruns:
+            terminalreporter.line(f"RERUN {rep.nodeid}: {rep.longrepr}")

@@ -40,7 +40,7 @@ argument errors then answer in about 0.2 s instead of paying for JAX first."""
 from brdf_fit.cli._common import CLIError, read_data
 from brdf_fit.cli.check import CHECK_NAMES
 from brdf_fit.cli.convert import REPRESENTS_TOL
-from brdf_fit.cli.main import build_parser, cache_dir, main
+from brdf_fit.cli.main import build_parser, cache_dir, main, run
 
 __all__ = ["CHECK_NAMES", "CLIError", "REPRESENTS_TOL", "build_parser", "cache_dir", "main",
-           "read_data"]
+           "read_data", "run"]

@@ -1,8 +1,6 @@
 """``python -m brdf_fit.cli``: the ``brdf-fit`` program (the launchers start their processes
 so, with the interpreter that runs them)."""
 
-import sys
+from brdf_fit.cli.main import run
 
-from brdf_fit.cli.main import main
-
-sys.exit(main())
+run()

@@ -8,6 +8,7 @@ import json
 import os
 import pathlib
 import sys
+from typing import NoReturn
 
 from brdf_fit._version import __version__
 from brdf_fit.cli import (
@@ -149,7 +150,36 @@ def _io_failure(args, exc: OSError) -> int:
     return 1
 
 
+#: exit statuses of a command stopped by SIGINT (130) or SIGTERM (143)
+STOPPED = (130, 143)
+
+
+def run(argv: list[str] | None = None) -> NoReturn:
+    """The program (the ``brdf-fit`` script and ``python -m brdf_fit.cli``): :func:`main`, then
+    the process ends with its status.
+
+    A command stopped by SIGINT or SIGTERM ends with ``os._exit`` once its output is flushed,
+    skipping the interpreter's shutdown. The stop may come while XLA compiles: jaxlib (0.10.2)
+    compiles on a thread of its own and the caller's wait for it ends on a signal, so the
+    compile goes on after the command has returned. The interpreter's shutdown then destroys
+    the JAX client under that thread, which dies on a null or freed function pointer: the
+    process ends with SIGSEGV (status 139 and a core file where core dumps are on) instead of
+    130 / 143 (``tests/cli/test_cli_interrupt.py`` shows both). What a stopped command keeps is
+    written and closed before :func:`main` returns, and a launcher has ended its processes."""
+    status = main(argv)
+    if status in STOPPED:
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (OSError, ValueError):  # a closed pipe or stream: nothing more to say
+                pass
+        os._exit(status)
+    sys.exit(status)
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run one command and return its exit status (the tests call it in-process; the program
+    is :func:`run`)."""
     import signal
     import warnings
 
