@@ -84,9 +84,25 @@ def _print_fit(result, data, path: str) -> None:
     status = "yes" if result.converged else f"NO ({result.message})"
     print(f"converged: {status}; steps: {result.steps}; starts: {result.starts}; "
           f"residual rms: {result.residual_rms:.6g}; time: {result.seconds:.2f} s")
+    print_regions(result.regions)
     if result.checks:
         print()
         print_check_table(result.checks)
+
+
+def print_regions(rows) -> None:
+    """The fit against its data by region of the geometry (brdf_fit.fitting.regions), the
+    region with the largest rms marked."""
+    if not rows:
+        return
+    rms = [r["rms_log_ratio"] for r in rows]
+    worst = int(np.nanargmax(rms)) if np.isfinite(rms).any() else -1
+    print("where the misfit is (ln(model/data) by region: rms, and the mean as a factor):")
+    for k, r in enumerate(rows):
+        stats = ("no samples" if not r["samples"] else
+                 f"rms {r['rms_log_ratio']:8.3g}  model {100 * r['mean_factor']:+7.2f}%")
+        print(f"  {r['region']:<17} {r['samples']:>8} ({100 * r['share']:5.1f}%)  {stats}"
+              + ("  <- largest" if k == worst and len(rows) > 1 else ""))
 
 
 def run(args) -> int:
@@ -128,6 +144,7 @@ def run(args) -> int:
                      time_limit=args.time_limit, progress=progress)
     finally:
         progress.close()
+    result.regions = result.residuals_by_region(data)
     exported = []
     outs = Outputs(note="the fit is printed instead")  # nothing computed is lost to a write
     if kind is not None:

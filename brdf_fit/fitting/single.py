@@ -172,6 +172,10 @@ class FitResult:
     #: eta and k where the data fix only the reflectance they give)
     correlation: np.ndarray | None = None
     correlation_labels: tuple[str, ...] = ()
+    #: the fit against its data by region of the geometry, where asked for
+    #: (:meth:`residuals_by_region`; ``brdf-fit fit`` does): rows of
+    #: :func:`brdf_fit.fitting.regions.residuals_by_region`
+    regions: list | None = None
 
     def strongly_correlated(self, threshold: float = STRONG_CORRELATION):
         """``[(label_a, label_b, r), ...]``: the pairs of entries whose correlation reaches
@@ -184,6 +188,16 @@ class FitResult:
                  for j in range(i + 1, len(labels))
                  if np.isfinite(c[i, j]) and abs(c[i, j]) >= threshold]
         return sorted(pairs, key=lambda t: -abs(t[2]))
+
+    def residuals_by_region(self, data: GonioData) -> list[dict]:
+        """The fitted model against ``data`` (the fitted data, or other data of the same
+        material) by region of the geometry: grazing, specular peak, retro-reflection,
+        off-specular (:func:`brdf_fit.fitting.regions.residuals_by_region`). Evaluates the
+        model at every sample (one compiled program per model); not part of :func:`fit`, so
+        a fit that does not ask pays nothing."""
+        from brdf_fit.fitting.regions import residuals_by_region
+
+        return residuals_by_region(self.model, data.wi, data.wo, data.value)
 
     def to_dict(self) -> dict:
         def tolist(v):
@@ -211,6 +225,9 @@ class FitResult:
             "correlation": ({"labels": list(self.correlation_labels),
                              "matrix": json_floats(self.correlation)}
                             if self.correlation is not None else None),
+            **({"regions": [{k: (json_floats(v) if isinstance(v, float) else v)
+                             for k, v in row.items()} for row in self.regions]}
+               if self.regions is not None else {}),
             # only where some standard error is undefined (null in "stderr"): the reasons
             **({"stderr_note": {k: np.asarray(v).tolist() for k, v in self.stderr_note.items()}}
                if self.stderr_note else {}),

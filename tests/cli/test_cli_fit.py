@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from brdf_fit.cli import main
+from brdf_fit.fitting.regions import REGIONS
 from brdf_fit.fitting.single import FitResult
 
 TRUTH = {"alpha": 0.23, "f0": [0.9, 0.6, 0.3]}
@@ -90,13 +91,18 @@ def test_round_trip_csv(csv_data, capsys):
     fields = FitResult.__dataclass_fields__
     assert set(r) == {"model", "params", "stderr", "fixed", "converged", "steps", "metric",
                       "loss", "residual_rms", "n_samples", "n_params", "seconds", "starts",
-                      "message", "checks", "at_bound", "undetermined", "correlation"}
+                      "message", "checks", "at_bound", "undetermined", "correlation",
+                      "regions"}
     assert {"model_name", "params", "stderr", "converged", "metric", "residual_rms"} <= set(fields)
     assert r["model"] == "ggx" and r["metric"] == "log" and r["n_params"] == 4
     for k, v in TRUTH.items():
         np.testing.assert_allclose(r["params"][k], v, rtol=1e-6, err_msg=k)
     assert set(r["stderr"]) == {"alpha", "f0"}
     assert r["residual_rms"] < 1e-8
+    # where the misfit is (brdf_fit.fitting.regions): every sample in one region, none missed
+    assert [g["region"] for g in r["regions"]] == list(REGIONS)
+    assert sum(g["samples"] for g in r["regions"]) == r["n_samples"]
+    assert max(g["rms_log_ratio"] for g in r["regions"] if g["samples"]) < 1e-7
 
 
 def test_round_trip_npz(tmp_path, capsys):
