@@ -15,6 +15,8 @@
     brdf-fit demo [--out DIR] [--json]
     brdf-fit select DATA [--candidates A,B,..|--family NAME] [--budget X] [--plot PNG] [--json]
     brdf-fit plot MODEL [MODEL ...] [--param NAME=VALUE] [--data FILE [--fit]] -o PNG
+    brdf-fit render [MODEL [--param NAME=VALUE ...] | --fit FIT.json] -o PNG|EXR [--size N]
+                 [--light-zenith-deg X] [--light-azimuth-deg X] [--irradiance E] [--json]
     brdf-fit lut dfg -o FILE [--size N] [--masking M] [--layout NAME] [--channels A,B] [--json]
     brdf-fit lut albedo|eavg MODEL --axis NAME=N[:LO:HI] ... [--param NAME=VALUE] -o FILE
     brdf-fit convert phong-to-ggx [--source modified-phong|blinn-phong|...] [--exponents N ...]
@@ -30,7 +32,7 @@ metric, check) print one line ``brdf-fit: error: ...`` and exit with status 2.
 
 One module per command (``models``, ``catalogue``, ``evaluate`` (eval), ``check``, ``synth``,
 ``fit`` and ``fit_database``, ``fit_batch`` with ``fit_batch_stream`` and ``fit_batch_arrays``,
-``demo``, ``convert``, ``select``, ``plot``, ``lut``): each holds its parser (``add_parser``),
+``demo``, ``convert``, ``select``, ``plot``, ``render``, ``lut``): each holds its parser (``add_parser``),
 its run (``run``) and its output. What they share is in the underscored modules (``_common``:
 errors, argument types, files; ``_progress``; ``_export``; ``_processes``; ``_batch_rows`` and
 ``_batch_stream`` for fit-batch); :mod:`brdf_fit.cli.main` assembles the parser and runs a

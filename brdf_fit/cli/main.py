@@ -22,6 +22,7 @@ from brdf_fit.cli import (
     lut,
     models,
     plot,
+    render,
     select,
     synth,
 )
@@ -36,7 +37,7 @@ from brdf_fit.cli._processes import LAUNCHED_ENV
 #: the commands in the order ``brdf-fit --help`` lists them; each module has ``add_parser(sub)``
 #: (its options, with ``func=run``) and ``run(args)``
 COMMANDS = (models, catalogue, evaluate, check, synth, fit, fit_batch, demo, convert, select,
-            plot, lut)
+            plot, render, lut)
 
 #: the program's one-line description (``brdf-fit --help``)
 DESCRIPTION = ("Command-line interface: thin wrappers that parse, call the library, print "

@@ -1,0 +1,142 @@
+"""Previews: a sphere shaded with a model under a directional light, as a linear image
+(issue 46's first part: environments, measured data rendered from themselves, FLIP and the
+report page are not built yet).
+
+The scene, and Mitsuba 3's equivalent (``tests/test_render.py`` renders it there too):
+
+- a unit sphere at the origin, seen by an orthographic camera on the +z axis looking down -z
+  (``+y`` up, ``+x`` to the right of the image); the image covers ``[-FRAME_HALF_WIDTH,
+  FRAME_HALF_WIDTH]`` in x and y, one ray per pixel through its centre;
+- a directional light of irradiance ``E`` (W/m^2 on a surface facing it) arriving from
+  zenith ``theta`` and azimuth ``phi`` (``(sin theta cos phi, sin theta sin phi, cos theta)``
+  points toward it);
+- direct illumination only: ``L = f(wi, wo) cos(theta_i) E`` at every pixel on the sphere
+  (a convex sphere casts no shadow on itself), 0 elsewhere. ``wi`` is the light's direction and
+  ``wo`` the camera's (``(0, 0, 1)``), both in the shading frame of the hit point: the normal
+  ``n``, the tangent along the sphere's azimuth ``s = normalize(-n_y, n_x, 0)`` (Mitsuba's
+  ``sphere`` shape: the direction of ``dp/du``; ``(1, 0, 0)`` at the pole, the image centre)
+  and ``t = n x s``.
+
+With the default ``E = pi`` a white Lambertian surface facing the light renders 1. The sRGB
+PNG is ``clip(L 2^exposure, 0, 1)`` encoded with the sRGB transfer function (IEC 61966-2-1,
+through colour-science), 8 bits; the OpenEXR file keeps ``L`` linear (float32).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import pathlib
+
+import numpy as np
+
+__all__ = ["FRAME_HALF_WIDTH", "IRRADIANCE", "SphereImage", "render_sphere", "write_image"]
+
+#: half the width of the square the image covers, in sphere radii (a 10% margin)
+FRAME_HALF_WIDTH = 1.1
+#: default irradiance: a white Lambertian surface facing the light renders 1
+IRRADIANCE = math.pi
+
+
+@dataclasses.dataclass
+class SphereImage:
+    """A rendered sphere: ``radiance`` ``(size, size, C)`` (linear, C = the model's channels,
+    at least 3), ``mask`` ``(size, size)`` (pixels on the sphere), ``cos_view`` (``n . wo``
+    per pixel; 0 off the sphere: how far from the silhouette), the light's direction and
+    irradiance."""
+
+    radiance: np.ndarray
+    mask: np.ndarray
+    cos_view: np.ndarray
+    light: np.ndarray
+    irradiance: np.ndarray
+
+
+def light_direction(zenith_deg: float, azimuth_deg: float = 0.0) -> np.ndarray:
+    """The unit vector toward a light at ``zenith_deg`` from +z and ``azimuth_deg`` from +x."""
+    t, p = math.radians(zenith_deg), math.radians(azimuth_deg)
+    return np.array([math.sin(t) * math.cos(p), math.sin(t) * math.sin(p), math.cos(t)])
+
+
+def sphere_geometry(size: int, light) -> tuple[np.ndarray, ...]:
+    """``(wi, wo, cos_i, mask, cos_view)`` per pixel, flattened row-major (row 0 at the top):
+    the light and camera directions in each hit point's shading frame (the normal incidence
+    pair off the sphere, where nothing is drawn), the light's cosine (0 below the surface)."""
+    c = (np.arange(size) + 0.5) / size * 2.0 - 1.0
+    x = FRAME_HALF_WIDTH * c[None, :].repeat(size, 0)
+    y = -FRAME_HALF_WIDTH * c[:, None].repeat(size, 1)
+    r2 = x * x + y * y
+    mask = r2 < 1.0
+    n = np.stack([x, y, np.sqrt(np.maximum(1.0 - r2, 0.0))], -1).reshape(-1, 3)
+    s = np.stack([-n[:, 1], n[:, 0], np.zeros(len(n))], -1)
+    norm = np.linalg.norm(s, axis=-1, keepdims=True)
+    s = np.where(norm > 0.0, s / np.where(norm > 0.0, norm, 1.0), [1.0, 0.0, 0.0])
+    t = np.cross(n, s)
+    frame = np.stack([s, t, n], 1)  # rows: the local axes in world coordinates
+    light = np.asarray(light, float)
+    wi = frame @ (light / np.linalg.norm(light))
+    wo = frame @ np.array([0.0, 0.0, 1.0])
+    m = mask.reshape(-1)
+    up = np.array([0.0, 0.0, 1.0])
+    wi = np.where(m[:, None], wi, up)
+    wo = np.where(m[:, None], wo, up)
+    cos_i = np.where(m, np.maximum(wi[:, 2], 0.0), 0.0)
+    return wi, wo, cos_i, m, np.where(m, n[:, 2], 0.0)
+
+
+def render_sphere(model, size: int = 256, light_zenith_deg: float = 45.0,
+                  light_azimuth_deg: float = 0.0, irradiance=IRRADIANCE) -> SphereImage:
+    """The sphere shaded with ``model`` (a built model) under a directional light (module
+    docstring). One call of ``model.eval`` on every pixel: one compiled program per model
+    type and image size, whatever the parameter values. ``irradiance``: a number or one per
+    channel."""
+    import jax.numpy as jnp
+
+    if size < 1:
+        raise ValueError(f"render: size must be >= 1, got {size}")
+    light = light_direction(light_zenith_deg, light_azimuth_deg)
+    wi, wo, cos_i, m, cos_view = sphere_geometry(int(size), light)
+    dtype = jnp.zeros(()).dtype
+    f = np.asarray(model.eval(jnp.asarray(wi, dtype), jnp.asarray(wo, dtype)), float)
+    f = f.reshape(len(wi), -1)
+    channels = max(3, f.shape[1])
+    E = np.broadcast_to(np.asarray(irradiance, float).reshape(-1), (channels,))
+    L = np.broadcast_to(f, (len(wi), channels)) * cos_i[:, None] * E
+    L = np.where(m[:, None], L, 0.0)
+    return SphereImage(radiance=L.reshape(size, size, channels),
+                       mask=m.reshape(size, size), cos_view=cos_view.reshape(size, size),
+                       light=light, irradiance=np.array(E))
+
+
+def srgb_8bit(radiance, exposure: float = 0.0) -> np.ndarray:
+    """``(H, W, 3)`` uint8: ``clip(L 2^exposure, 0, 1)`` through the sRGB encoding
+    (IEC 61966-2-1, colour-science's ``cctf_encoding``), rounded."""
+    import colour
+
+    v = np.clip(np.asarray(radiance, float)[..., :3] * 2.0 ** exposure, 0.0, 1.0)
+    return np.round(colour.cctf_encoding(v, function="sRGB") * 255.0).astype(np.uint8)
+
+
+def write_image(path, image: SphereImage, exposure: float = 0.0) -> pathlib.Path:
+    """Write ``image`` as ``.png`` (sRGB, 8 bits, :func:`srgb_8bit`) or ``.exr`` (linear
+    float32 R, G, B, and A = the sphere's mask), by the suffix; whole or not at all
+    (:func:`brdf_fit.core.atomic.atomic_path`)."""
+    from brdf_fit.core.atomic import atomic_path
+
+    path = pathlib.Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in (".png", ".exr"):
+        raise ValueError(f"{path}: unknown image extension {path.suffix!r}; use .png or .exr")
+    if suffix == ".png":
+        import matplotlib.image
+
+        pixels = srgb_8bit(image.radiance, exposure)
+        with atomic_path(path) as tmp:
+            matplotlib.image.imsave(tmp, pixels, format="png")
+    else:
+        from brdf_fit.io.exr import write_exr
+
+        rgba = np.concatenate([image.radiance[..., :3], image.mask[..., None]], -1)
+        with atomic_path(path) as tmp:
+            write_exr(tmp, rgba.astype(np.float32), channels=("R", "G", "B", "A"))
+    return path
