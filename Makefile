@@ -58,6 +58,7 @@ bench: $(STAMP)         ## re-run the committed benchmarks (results in benchmark
 	$(BIN)/python benchmarks/bench_coverage.py
 	$(BIN)/python benchmarks/bench_select.py
 	$(BIN)/python benchmarks/bench_latency.py
+	$(BIN)/python benchmarks/bench_render.py
 	$(BIN)/python benchmarks/report.py   # results/REPORT.md + results/report/*.png
 
 clean:
