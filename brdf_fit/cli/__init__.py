@@ -33,11 +33,11 @@ metric, check) print one line ``brdf-fit: error: ...`` and exit with status 2.
 One module per command (``models``, ``catalogue``, ``evaluate`` (eval), ``check``, ``synth``,
 ``fit`` and ``fit_database``, ``fit_batch`` with ``fit_batch_stream`` and ``fit_batch_arrays``,
 ``demo``, ``convert``, ``select``, ``plot``, ``render``, ``lut``): each holds its parser
-(``add_parser``), its run (``run``) and its output. What they share is in the underscored modules (``_common``:
-errors, argument types, files; ``_progress``; ``_export``; ``_processes``; ``_batch_rows`` and
-``_batch_stream`` for fit-batch); :mod:`brdf_fit.cli.main` assembles the parser and runs a
-command. The library is imported inside each command, on purpose: ``brdf-fit --help`` and
-argument errors then answer in about 0.2 s instead of paying for JAX first."""
+(``add_parser``), its run (``run``) and its output. What they share is in the underscored
+modules (``_common``: errors, argument types, files; ``_progress``; ``_export``; ``_processes``;
+``_batch_rows`` and ``_batch_stream`` for fit-batch); :mod:`brdf_fit.cli.main` assembles the
+parser and runs a command. The library is imported inside each command, on purpose: ``brdf-fit
+--help`` and argument errors then answer in about 0.2 s instead of paying for JAX first."""
 
 from brdf_fit.cli._common import CLIError, read_data
 from brdf_fit.cli.check import CHECK_NAMES
