@@ -19,7 +19,8 @@ import numpy as np
 from brdf_fit.data import GonioData
 
 __all__ = ["database_errors", "hemisphere", "in_plane_samples", "in_plane_slices",
-           "model_lobes", "residuals", "selection_front", "table_maps"]
+           "model_lobes", "residuals", "rusinkiewicz_slice", "rusinkiewicz_slices",
+           "selection_front", "table_maps"]
 
 #: Tolerance on angles (degrees) when picking the in-plane samples out of a scattered dataset.
 ANGLE_TOL_DEG = 0.5
@@ -182,6 +183,73 @@ def residuals(data: GonioData, models: Sequence[tuple[str, object]], title: str 
     axes[0].legend(fontsize=7, markerscale=3)
     if title:
         fig.suptitle(title)
+    return fig
+
+
+def rusinkiewicz_slices(table, models: Sequence[tuple[str, object]], phi_d_deg: float = 90.0,
+                        channel: int = 1):
+    """The arrays :func:`rusinkiewicz_slice` draws: ``(theta_h_deg, theta_d_deg, data,
+    [(label, model values, ln(model / data)), ...])``, images ``[i_theta_h, i_theta_d]`` of
+    ``channel`` at the ``phi_d`` bin holding ``phi_d_deg``; NaN where a bin is missing (or a
+    value is not positive, in the log ratio)."""
+    from brdf_fit.io.merl import MERL_DIMS, merl_slice_centres
+
+    table = np.asarray(table, float)
+    if table.shape != (3, *MERL_DIMS):
+        raise ValueError(f"rusinkiewicz_slice: a MERL table (3, 90, 90, 180), got {table.shape}")
+    i_pd = min(int(phi_d_deg / 180.0 * MERL_DIMS[2]), MERL_DIMS[2] - 1)
+    wi, wo, theta_h, theta_d = merl_slice_centres(i_pd)
+    data = table[channel, :, :, i_pd]
+    data = np.where(data < 0.0, np.nan, data)
+    rows = []
+    for label, model in models:
+        m = _eval(model, wi.reshape(-1, 3), wo.reshape(-1, 3))
+        m = np.broadcast_to(m, (m.shape[0], 3))[:, channel].reshape(data.shape)
+        m = np.where((wi[..., 2] > 0) & (wo[..., 2] > 0), m, np.nan)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ratio = np.where((data > 0) & (m > 0), np.log(m / data), np.nan)
+        rows.append((label, m, ratio))
+    return np.degrees(theta_h), np.degrees(theta_d), data, rows
+
+
+def rusinkiewicz_slice(table, models: Sequence[tuple[str, object]], phi_d_deg: float = 90.0,
+                       channel: int = 1, title: str | None = None):
+    """The Rusinkiewicz image slice of dense MERL data (:func:`brdf_fit.io.merl.
+    read_merl_table`) beside each model: ``theta_d`` to the right, ``theta_h`` upward (the
+    bins' centres, MERL's square-root spacing), at one ``phi_d`` bin (90 degrees by default:
+    the slice where retro-reflection sits at small ``theta_d`` and grazing at large); the data
+    and each model in log10 on one scale, and ``ln(model / data)`` on a symmetric diverging
+    scale; ``channel`` 0, 1, 2 = R, G, B. Missing bins are blank. Rusinkiewicz (1998), sec. 3."""
+    th, td, data, rows = rusinkiewicz_slices(table, models, phi_d_deg, channel)
+    fig = _figure(3.4 * (1 + 2 * bool(rows)), 3.0 * max(1, len(rows)))
+    axes = fig.subplots(max(1, len(rows)), 3 if rows else 1, squeeze=False)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        logs = [np.log10(data)] + [np.log10(m) for _, m, _ in rows]
+    finite = np.concatenate([v[np.isfinite(v)] for v in logs])
+    lo, hi = (float(np.percentile(finite, 1)), float(np.max(finite))) if finite.size else (0, 1)
+    rmax = max([float(np.nanmax(np.abs(r))) for _, _, r in rows if np.isfinite(r).any()]
+               + [1e-6])
+
+    def image(ax, v, **kw):
+        im = ax.pcolormesh(td, th, v, shading="nearest", **kw)
+        ax.set_xlabel("theta_d [deg]")
+        ax.set_ylabel("theta_h [deg]")
+        return im
+
+    name = "RGB"[channel]
+    for k in range(max(1, len(rows))):
+        im = image(axes[k, 0], logs[0], vmin=lo, vmax=hi, cmap="magma")
+        axes[k, 0].set_title(f"data ({name}), log10 f", fontsize=9)
+        fig.colorbar(im, ax=axes[k, 0])
+        if rows:
+            label, _, ratio = rows[k]
+            im = image(axes[k, 1], logs[k + 1], vmin=lo, vmax=hi, cmap="magma")
+            axes[k, 1].set_title(f"{label}, log10 f", fontsize=9)
+            fig.colorbar(im, ax=axes[k, 1])
+            im = image(axes[k, 2], ratio, vmin=-rmax, vmax=rmax, cmap="RdBu_r")
+            axes[k, 2].set_title(f"ln({label} / data)", fontsize=9)
+            fig.colorbar(im, ax=axes[k, 2])
+    fig.suptitle((title + ": " if title else "") + f"phi_d = {phi_d_deg:g} deg slice")
     return fig
 
 

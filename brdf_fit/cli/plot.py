@@ -62,9 +62,18 @@ def run(args) -> int:
         fig1 = plot.in_plane_slices(data, models, args.theta_i_deg, channel=args.channel,
                                     title=args.data)
         fig2 = plot.residuals(data, models, title=args.data)
+    fig3 = None
+    if data is not None and data.metadata.get("format") == "merl":  # dense: its own slice
+        from brdf_fit.io.merl import read_merl_table
+
+        fig3 = plot.rusinkiewicz_slice(read_merl_table(args.data), models,
+                                       channel=1 if args.channel is None else args.channel,
+                                       title=args.data)
     outs = Outputs(note="the fitted parameters are printed above" if args.fit else None)
     outs.figure("-o", out, fig1)
     outs.figure("-o", second, fig2)
+    if fig3 is not None:
+        outs.figure("-o", out.with_name(f"{out.stem}_slice{out.suffix}"), fig3)
     for path in outs.written:
         print(f"wrote {path}")
     return outs.status()
@@ -76,7 +85,9 @@ def add_parser(sub) -> None:
     pl.add_argument("models", nargs="*", metavar="MODEL", help="registry model name(s)")
     pl.add_argument("-o", "--output", required=True,
                     help="picture (.png, .pdf, .svg); a second one is written beside it "
-                         "(NAME_hemisphere or NAME_residuals)")
+                         "(NAME_hemisphere or NAME_residuals), and for MERL data a third, "
+                         "NAME_slice: the phi_d = 90 deg slice of data, models and their log "
+                         "ratio")
     pl.add_argument("--param", action="append", metavar="NAME=VALUE",
                     help="a parameter of the (single) MODEL; repeatable")
     pl.add_argument("--data", default=None, metavar="FILE",

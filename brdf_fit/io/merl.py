@@ -42,6 +42,7 @@ __all__ = [
     "MERL_SCALES",
     "is_merl_file",
     "merl_bin_centres",
+    "merl_slice_centres",
     "half_diff_angles",
     "merl_indices",
     "merl_lookup",
@@ -128,6 +129,26 @@ def merl_bin_centres() -> tuple[np.ndarray, np.ndarray]:
         h = np.stack([np.sin(theta_h), np.zeros_like(theta_h), np.cos(theta_h)], -1)
         wo[i] = 2.0 * np.sum(wi[i] * h, -1, keepdims=True) * h - wi[i]
     return wi.reshape(N_BINS, 3), wo.reshape(N_BINS, 3)
+
+
+def merl_slice_centres(i_phi_d: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(wi, wo, theta_h, theta_d)`` of the bin centres of one ``phi_d`` bin: directions
+    ``(90, 90, 3)`` indexed ``[i_theta_h, i_theta_d]`` (made as :func:`merl_bin_centres` makes
+    them, phi_h = 0), and the centres' angles in radians (``(90,)`` each). The
+    Rusinkiewicz "image slice" at ``phi_d = 90`` degrees is bin 90."""
+    if not 0 <= int(i_phi_d) < N_PD:
+        raise ValueError(f"merl_slice_centres: the phi_d bin must be in [0, {N_PD}), got {i_phi_d}")
+    theta_h = ((np.arange(N_TH) + 0.5) / N_TH) ** 2 * _HALF_PI
+    theta_d = (np.arange(N_TD) + 0.5) / N_TD * _HALF_PI
+    phi_d = (int(i_phi_d) + 0.5) / N_PD * np.pi
+    st = np.sin(theta_d)
+    d = np.stack([st * np.cos(phi_d), st * np.sin(phi_d), np.cos(theta_d)], -1)  # (90, 3)
+    th = np.repeat(theta_h, N_TD)
+    dd = np.tile(d, (N_TH, 1))
+    wi = _rotate(dd, _Y, th)
+    h = np.stack([np.sin(th), np.zeros_like(th), np.cos(th)], -1)
+    wo = 2.0 * np.sum(wi * h, -1, keepdims=True) * h - wi
+    return wi.reshape(N_TH, N_TD, 3), wo.reshape(N_TH, N_TD, 3), theta_h, theta_d
 
 
 def _evaluate(fn_or_model, wi, wo, chunk):
