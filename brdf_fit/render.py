@@ -30,12 +30,30 @@ import pathlib
 
 import numpy as np
 
-__all__ = ["FRAME_HALF_WIDTH", "IRRADIANCE", "SphereImage", "render_sphere", "write_image"]
+__all__ = ["FLIP_EXTRA", "FRAME_HALF_WIDTH", "IRRADIANCE", "MerlTable", "SphereImage",
+           "flip_error", "render_sphere", "write_image"]
 
 #: half the width of the square the image covers, in sphere radii (a 10% margin)
 FRAME_HALF_WIDTH = 1.1
 #: default irradiance: a white Lambertian surface facing the light renders 1
 IRRADIANCE = math.pi
+#: how to install NVIDIA's FLIP (an optional dependency, imported when a difference is asked)
+FLIP_EXTRA = "pip install flip-evaluator (or pip install 'brdf_fit[render]')"
+
+
+class MerlTable:
+    """Dense MERL data as something :func:`render_sphere` shades with: ``eval`` interpolates
+    trilinearly between the bin centres (:func:`brdf_fit.io.merl.merl_interpolate`; the
+    nearest bin would draw the bins' edges across a highlight); a missing bin renders 0."""
+
+    def __init__(self, table):
+        self.table = np.asarray(table, float)
+
+    def eval(self, wi, wo):
+        from brdf_fit.io.merl import merl_interpolate
+
+        v = merl_interpolate(self.table, np.asarray(wi, float), np.asarray(wo, float))
+        return np.where(v < 0.0, 0.0, v)
 
 
 @dataclasses.dataclass
@@ -106,6 +124,34 @@ def render_sphere(model, size: int = 256, light_zenith_deg: float = 45.0,
     return SphereImage(radiance=L.reshape(size, size, channels),
                        mask=m.reshape(size, size), cos_view=cos_view.reshape(size, size),
                        light=light, irradiance=np.array(E))
+
+
+def flip_error(reference: SphereImage, test: SphereImage) -> tuple[np.ndarray, float]:
+    """NVIDIA's FLIP (Andersson et al. 2021, "Visualizing errors in rendered high dynamic range
+    images", Eurographics short papers; the ``flip-evaluator`` package) between two renders of
+    the scene, in its HDR mode on the linear RGB radiance (its own exposure range and tone
+    mapper, 67 pixels per degree): ``(error map (H, W) in [0, 1], its mean over the
+    reference's sphere)``. The mean leaves out the background, which both draw black and
+    would only dilute it."""
+    try:
+        import flip_evaluator
+    except ImportError:
+        raise ImportError(f"a FLIP difference needs NVIDIA's FLIP: {FLIP_EXTRA}") from None
+    ref = np.ascontiguousarray(reference.radiance[..., :3], np.float32)
+    tst = np.ascontiguousarray(test.radiance[..., :3], np.float32)
+    if ref.shape != tst.shape:
+        raise ValueError(f"flip_error: images of shapes {ref.shape} and {tst.shape}")
+    emap = np.asarray(flip_evaluator.evaluate(ref, tst, "HDR", applyMagma=False)[0], float)
+    emap = emap.reshape(ref.shape[:2])
+    return emap, float(emap[reference.mask].mean()) if reference.mask.any() else 0.0
+
+
+def error_map_8bit(emap) -> np.ndarray:
+    """A FLIP error map as ``(H, W, 3)`` uint8 through matplotlib's magma (FLIP's own colour
+    map), 0 black to 1 light yellow."""
+    from matplotlib import colormaps
+
+    return np.round(colormaps["magma"](np.clip(emap, 0.0, 1.0))[..., :3] * 255).astype(np.uint8)
 
 
 def srgb_8bit(radiance, exposure: float = 0.0) -> np.ndarray:

@@ -1,9 +1,12 @@
-"""``brdf-fit render``: a sphere shaded with a model, or with a fit's result, under a
-directional light (:mod:`brdf_fit.render`), as sRGB PNG or linear OpenEXR."""
+"""``brdf-fit render``: a sphere shaded with a model, a fit's result or dense MERL data under
+a directional light (:mod:`brdf_fit.render`), as sRGB PNG or linear OpenEXR; data beside a
+model also gives NVIDIA's FLIP between them."""
 
 from __future__ import annotations
 
 import json
+import pathlib
+import sys
 import time
 
 import numpy as np
@@ -54,30 +57,71 @@ def run(args) -> int:
         if args.model is not None or args.param:
             raise CLIError("--fit gives the model and its parameters: no MODEL or --param")
         entry, params = _from_fit(args.fit, reg)
+    elif args.model is None and args.data is None:
+        raise CLIError("render needs a MODEL (e.g. 'brdf-fit render ggx -o sphere.png'), "
+                       "--fit FIT.json or --data FILE.binary")
     elif args.model is None:
-        raise CLIError("render needs a MODEL (e.g. 'brdf-fit render ggx -o sphere.png') or "
-                       "--fit FIT.json")
+        if args.param:
+            raise CLIError("--param needs a MODEL")
+        entry, params = None, {}
     else:
         entry = reg.get(args.model)
         params = parse_params(args.param, entry)
+    table = None
+    if args.data is not None:
+        from brdf_fit.io.merl import is_merl_file, read_merl_table
+
+        if not is_merl_file(args.data):
+            raise CLIError(f"{args.data}: --data renders dense MERL .binary data only (sparse "
+                           "data cannot be rendered from themselves: render a fit of them)")
+        table = read_merl_table(args.data)
     irradiance = [float(v) for v in args.irradiance.split(",")] if args.irradiance else None
     use_x64()
     from brdf_fit import render
 
+    light = (args.size, args.light_zenith_deg, args.light_azimuth_deg,
+             render.IRRADIANCE if irradiance is None else irradiance)
     t0 = time.perf_counter()
-    model = entry.build(**params)
-    image = render.render_sphere(model, args.size, args.light_zenith_deg, args.light_azimuth_deg,
-                                 render.IRRADIANCE if irradiance is None else irradiance)
+    image = None if entry is None else render.render_sphere(entry.build(**params), *light)
+    measured = None if table is None else render.render_sphere(render.MerlTable(table), *light)
+    flip = None
+    if image is not None and measured is not None:
+        try:
+            flip = render.flip_error(measured, image)
+        except ImportError as e:
+            print(f"brdf-fit: warning: no FLIP difference: {e}", file=sys.stderr)
     seconds = time.perf_counter() - t0
+    out = pathlib.Path(args.output)
+    data_out = out if image is None else out.with_name(f"{out.stem}_data{out.suffix}")
+    flip_out = out.with_name(f"{out.stem}_flip.png")
     outs = Outputs(note="nothing else was computed")
-    outs.write("-o", args.output, lambda: [render.write_image(args.output, image,
-                                                              args.exposure)])
-    on = image.radiance[image.mask]
-    doc = {"model": entry.name, "params": {k: np.asarray(v).tolist() for k, v in params.items()},
-           "out": args.output, "size": args.size,
+    if image is not None:
+        outs.write("-o", out, lambda: [render.write_image(out, image, args.exposure)])
+    if measured is not None:
+        outs.write("-o", data_out, lambda: [render.write_image(data_out, measured,
+                                                                 args.exposure)])
+    if flip is not None:
+        def write_flip():
+            import matplotlib.image
+
+            from brdf_fit.core.atomic import atomic_path
+
+            with atomic_path(flip_out) as tmp:
+                matplotlib.image.imsave(tmp, render.error_map_8bit(flip[0]), format="png")
+            return [flip_out]
+        outs.write("-o", flip_out, write_flip)
+    shown = image if image is not None else measured
+    on = shown.radiance[shown.mask]
+    doc = {"model": None if entry is None else entry.name,
+           "params": {k: np.asarray(v).tolist() for k, v in params.items()},
+           "data": args.data, "out": str(out) if image is not None else None,
+           "data_out": str(data_out) if measured is not None else None,
+           "flip_out": str(flip_out) if flip is not None else None,
+           "flip_mean": None if flip is None else flip[1],
+           "size": args.size,
            "light": {"zenith_deg": args.light_zenith_deg,
                      "azimuth_deg": args.light_azimuth_deg,
-                     "irradiance": image.irradiance.tolist()},
+                     "irradiance": shown.irradiance.tolist()},
            "exposure_stops": args.exposure,
            "radiance_max": on.max(0).tolist() if on.size else None,
            "radiance_mean": on.mean(0).tolist() if on.size else None,
@@ -85,11 +129,16 @@ def run(args) -> int:
     if args.json:
         print(json.dumps(outs.annotate(doc), indent=2))
     else:
-        shown = ", ".join(f"{k}={fmt(v)}" for k, v in params.items())
-        print(f"{entry.name}{f' ({shown})' if shown else ''}: sphere {args.size}x{args.size}, "
+        what = ", ".join(f"{k}={fmt(v)}" for k, v in params.items())
+        what = (args.data if entry is None else
+                f"{entry.name}{f' ({what})' if what else ''}"
+                + (f" beside {args.data}" if measured is not None else ""))
+        print(f"{what}: sphere {args.size}x{args.size}, "
               f"light at {args.light_zenith_deg:g} deg zenith, {args.light_azimuth_deg:g} deg "
-              f"azimuth, irradiance {fmt(image.irradiance)}; largest radiance "
+              f"azimuth, irradiance {fmt(shown.irradiance)}; largest radiance "
               f"{fmt(doc['radiance_max'] or 0.0)}; {seconds:.2f} s")
+        if flip is not None:
+            print(f"FLIP (data -> model), mean over the sphere: {flip[1]:.4g}")
         for path in outs.written:
             print(f"wrote {path}")
     return outs.status()
@@ -106,6 +155,10 @@ def add_parser(sub) -> None:
                    help="a parameter of MODEL (a number or one per channel); repeatable")
     r.add_argument("--fit", default=None, metavar="FIT.json",
                    help="the JSON answer of 'brdf-fit fit --json': its model and parameters")
+    r.add_argument("--data", default=None, metavar="FILE.binary",
+                   help="dense MERL data rendered from themselves (trilinear between the bin "
+                        "centres), written as NAME_data beside -o; with a MODEL or --fit also "
+                        "NAME_flip.png, NVIDIA's FLIP between the two (its mean in the output)")
     r.add_argument("--size", type=positive_int, default=256, metavar="N",
                    help="image side in pixels (default 256)")
     r.add_argument("--light-zenith-deg", type=float, default=45.0, metavar="DEG",

@@ -42,6 +42,7 @@ __all__ = [
     "MERL_SCALES",
     "is_merl_file",
     "merl_bin_centres",
+    "merl_interpolate",
     "merl_slice_centres",
     "half_diff_angles",
     "merl_indices",
@@ -283,6 +284,53 @@ def merl_lookup(table, wi, wo) -> np.ndarray:
         raise DataError(f"merl_lookup: wi and wo must be (N, 3), got {wi.shape} and {wo.shape}")
     ith, itd, ipd = merl_indices(wi, wo)
     out = table[:, ith, itd, ipd].T
+    below = (wi[:, 2] <= 0.0) | (wo[:, 2] <= 0.0)
+    return np.where(below[:, None], MERL_MISSING, out)
+
+
+def merl_interpolate(table, wi, wo) -> np.ndarray:
+    """Trilinear interpolation between bin centres in a table from :func:`read_merl_table`:
+    (N, 3) RGB BRDF in 1/sr. The coordinates are the bins' own (``theta_h`` in MERL's
+    square-root index, ``theta_d`` and ``phi_d`` linear), so a bin centre returns the bin's
+    value (to the rounding of its angles: 1e-11 relative); ``theta_h`` and ``theta_d`` are
+    clamped at the first and last centres, ``phi_d`` wraps with period pi (the table's
+    reciprocity fold). Missing neighbours are left out and the others' weights renormalised;
+    a pair with no valid neighbour, or a direction at or below the horizon, returns
+    :data:`MERL_MISSING`. Where :func:`merl_lookup` (the nearest bin) steps from bin to bin,
+    this is continuous (a rendered highlight shows no bin edges)."""
+    table = np.asarray(table, np.float64)
+    if table.shape != (3, *MERL_DIMS):
+        raise DataError(f"merl_interpolate: table must have shape (3, 90, 90, 180), got "
+                        f"{table.shape}")
+    wi = np.atleast_2d(np.asarray(wi, np.float64))
+    wo = np.atleast_2d(np.asarray(wo, np.float64))
+    theta_h, theta_d, phi_d = _half_diff(wi, wo)
+    phi_d = np.mod(phi_d, np.pi)
+    th = np.clip(np.sqrt(np.maximum(theta_h, 0.0) / _HALF_PI) * N_TH - 0.5, 0.0, N_TH - 1.0)
+    td = np.clip(theta_d / _HALF_PI * N_TD - 0.5, 0.0, N_TD - 1.0)
+    tp = phi_d / np.pi * N_PD - 0.5  # wraps: -0.5 is halfway between bins 179 and 0
+    corners = []
+    for t, n, wrap in ((th, N_TH, False), (td, N_TD, False), (tp, N_PD, True)):
+        lo = np.floor(t)
+        frac = t - lo
+        lo = lo.astype(np.int64)
+        hi = lo + 1
+        if wrap:
+            lo, hi = np.mod(lo, n), np.mod(hi, n)
+        else:
+            hi = np.minimum(hi, n - 1)
+        corners.append(((lo, 1.0 - frac), (hi, frac)))
+    total = np.zeros((wi.shape[0], 3))
+    weight = np.zeros((wi.shape[0], 3))
+    for (ih, wh) in corners[0]:
+        for (id_, wd) in corners[1]:
+            for (ip, wp) in corners[2]:
+                v = table[:, ih, id_, ip].T
+                w = (wh * wd * wp)[:, None] * (v >= 0.0)
+                total += w * np.where(v >= 0.0, v, 0.0)
+                weight += w
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = np.where(weight > 0.0, total / weight, MERL_MISSING)
     below = (wi[:, 2] <= 0.0) | (wo[:, 2] <= 0.0)
     return np.where(below[:, None], MERL_MISSING, out)
 

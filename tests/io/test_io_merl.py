@@ -281,3 +281,41 @@ def test_writer_rejects_bad_model_values(tmp_path):
     write_merl(p, lambda wi, wo: np.full(wi.shape[0], 0.25))
     t = read_merl_table(p)
     np.testing.assert_allclose(t[:, 0, 0, 0], 0.25, rtol=TWO_ROUNDINGS)
+
+
+def test_interpolation_between_bin_centres(tmp_path):
+    """merl_interpolate: a bin centre returns its bin; between centres the value follows the
+    trilinear formula (checked along phi_d across its wrap, bins 179 and 0); a smooth model's
+    file is interpolated closer to the model than the nearest bin; below the horizon missing."""
+    from _helpers import random_dirs
+
+    from brdf_fit.io.merl import (
+        merl_bin_centres,
+        merl_interpolate,
+        read_merl_table,
+    )
+
+    model = registry.get("ggx").build(alpha=0.35, f0=np.array([0.9, 0.6, 0.3]))
+    path = tmp_path / "ggx.binary"
+    write_merl(path, model)
+    table = read_merl_table(path)
+    wi, wo = merl_bin_centres()
+    ok = np.flatnonzero((wi[:, 2] > 0) & (wo[:, 2] > 0))[::1009]
+    np.testing.assert_allclose(merl_interpolate(table, wi[ok], wo[ok]),
+                               merl_lookup(table, wi[ok], wo[ok]), rtol=1e-10)
+    # phi_d = 0 (the fold): halfway between the centres of bins 179 and 0, at the centres of
+    # theta_h bin 40 and theta_d bin 30
+    h, d = 40, 30
+    mid_i, mid_o = half_diff_to_io(((h + 0.5) / 90) ** 2 * math.pi / 2, 0.0,
+                                   (d + 0.5) / 90 * math.pi / 2, 0.0)
+    got = merl_interpolate(table, mid_i, mid_o)
+    np.testing.assert_allclose(got[0], 0.5 * (table[:, h, d, 0] + table[:, h, d, 179]),
+                               rtol=1e-9)
+    rng = np.random.default_rng(7)
+    ri, ro = random_dirs(rng, 4000, lo=0.05), random_dirs(rng, 4000, lo=0.05)
+    truth = np.asarray(model.eval(ri, ro))
+    err_interp = np.abs(np.log(merl_interpolate(table, ri, ro) / truth))
+    err_nearest = np.abs(np.log(merl_lookup(table, ri, ro) / truth))
+    assert np.median(err_interp) < 0.5 * np.median(err_nearest)
+    below = merl_interpolate(table, np.array([[0.0, 0.6, -0.8]]), np.array([[0.0, 0.0, 1.0]]))
+    assert (below == -1.0).all()
