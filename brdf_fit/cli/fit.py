@@ -14,6 +14,7 @@ from brdf_fit.cli._common import (
     Outputs,
     add_fit_options,
     check_names,
+    check_output_file,
     load_registry,
     parse_params,
     positive_float,
@@ -105,6 +106,35 @@ def print_regions(rows) -> None:
               + ("  <- largest" if k == worst and len(rows) > 1 else ""))
 
 
+#: exports up to this size are shown in a report as written
+REPORT_EXPORT_MAX_BYTES = 20_000
+
+
+def _write_report(args, result, data, exported) -> None:
+    """``--report``: the fit's HTML page (:func:`brdf_fit.report.fit_report`), whole or not at
+    all; a MERL file's dense table is read again for its renders and slice."""
+    import shlex
+
+    from brdf_fit.core.atomic import write_text_atomic
+    from brdf_fit.report import fit_report
+
+    table = None
+    if data.metadata.get("format") == "merl":
+        from brdf_fit.io.merl import read_merl_table
+
+        table = read_merl_table(args.data)
+    export = None
+    if exported is not None:
+        export = {**exported, "path": args.export}
+        if os.path.getsize(args.export) <= REPORT_EXPORT_MAX_BYTES:
+            with open(args.export, encoding="utf-8") as fh:
+                export["text"] = fh.read()
+    argv = args._argv if args._argv is not None else sys.argv[1:]
+    page = fit_report(result, data, source=args.data, table=table, export=export,
+                      command=shlex.join(["brdf-fit", *argv]))
+    write_text_atomic(args.report, page)
+
+
 def run(args) -> int:
     use_x64()
     models = [m.strip() for m in args.model.split(",") if m.strip()]
@@ -118,6 +148,8 @@ def run(args) -> int:
     reg = load_registry()
     entry = target_entry(reg, args.model, args.target)  # fails before the data are read
     kind = export_kind(args.export, args.target)
+    if args.report is not None:
+        check_output_file(args.report, (".html",), "--report")
     fix = parse_params(args.fix, entry, "--fix")
     init = parse_params(args.init, entry, "--init")
     both = sorted(set(fix) & set(init))
@@ -152,6 +184,8 @@ def run(args) -> int:
             kind, args.export, entry.name, result.params, data,
             name=os.path.splitext(os.path.basename(args.data))[0])))
     exported = exported[0] if exported else None
+    if args.report is not None:
+        outs.write("--report", args.report, lambda: _write_report(args, result, data, exported))
     if args.json:
         doc = result.to_dict()
         if exported is not None:
@@ -165,6 +199,8 @@ def run(args) -> int:
                   + ("(not verified)" if err is None else f"(round-trip error {err:.3g})")
                   + f": {exported['note']}")
             print(f"wrote {args.export}")
+        if args.report is not None and args.report in outs.written:
+            print(f"wrote {args.report}")
     if outs.failed:
         return outs.status()
     failed = [c for c in result.checks if not c.ok]
@@ -203,6 +239,10 @@ def add_parser(sub) -> None:
     f.add_argument("--export", default=None, metavar="OUT",
                    help="write the fitted model for a renderer: .xml (Mitsuba 3 scene with one "
                         "bsdf) or .gltf (glTF 2.0 material), checked by round trip on the data")
+    f.add_argument("--report", default=None, metavar="OUT.html",
+                   help="one self-contained HTML page: parameters with 95%% intervals, where "
+                        "the misfit is, the fit rendered (MERL data also rendered from "
+                        "themselves, with FLIP between the two), slices, the command")
     db = f.add_argument_group("a database run (many files x models, one table)")
     db.add_argument("--table", default=None, metavar="OUT.csv",
                     help="fit every file to every --model and write the table (CSV, and JSON "

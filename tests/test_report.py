@@ -1,0 +1,159 @@
+"""``brdf-fit fit --report``: one self-contained HTML page (brdf_fit.report, issue 46).
+
+Every picture is an embedded PNG that decodes and is not blank; there is no script and no
+reference outside the file; the parameter table holds the fit's own values with their 95%
+intervals; the regions are the fit's; the command that made it is on the page. For dense
+MERL data the page renders the data themselves beside the fit with FLIP between the two, and
+their Rusinkiewicz slice. Where Debian's chromium is installed (``.ci/run`` installs it), the
+page is opened headless and its screenshot compared with the same page with every image
+removed: the images are drawn (the difference covers their area), and the page is not blank.
+"""
+
+import base64
+import html.parser
+import io
+import json
+import pathlib
+import shutil
+import subprocess
+
+import matplotlib.image
+import numpy as np
+import pytest
+
+from brdf_fit import registry
+from brdf_fit.cli import main
+from brdf_fit.report import Z95, _num
+
+GOLD = pathlib.Path(__file__).resolve().parents[1] / "examples" / "gold_4axis.csv"
+
+
+class _Page(html.parser.HTMLParser):
+    def __init__(self):
+        super().__init__()
+        self.images, self.scripts, self.links, self.cells = [], 0, [], []
+        self._in_cell = False
+
+    def handle_starttag(self, tag, attrs):
+        a = dict(attrs)
+        if tag == "img":
+            self.images.append(a.get("src", ""))
+        if tag == "script":
+            self.scripts += 1
+        for key in ("href", "src"):
+            if key in a and tag != "img":
+                self.links.append(a[key])
+        if tag == "td":
+            self._in_cell = True
+            self.cells.append("")
+
+    def handle_endtag(self, tag):
+        if tag == "td":
+            self._in_cell = False
+
+    def handle_data(self, data):
+        if self._in_cell:
+            self.cells[-1] += data
+
+
+def _decoded(src: str) -> np.ndarray:
+    assert src.startswith("data:image/png;base64,"), src[:40]
+    return matplotlib.image.imread(io.BytesIO(base64.b64decode(src.split(",", 1)[1])),
+                                   format="png")
+
+
+def _fit_report(tmp_path, capsys, argv):
+    out = tmp_path / "r.html"
+    rc = main(["fit", *argv, "--report", str(out), "--quiet", "--json"])
+    doc = json.loads(capsys.readouterr().out)
+    page = _Page()
+    text = out.read_text(encoding="utf-8")
+    page.feed(text)
+    return rc, doc, page, text, out
+
+
+def test_report_of_a_sparse_fit(tmp_path, capsys):
+    rc, doc, page, text, _ = _fit_report(tmp_path, capsys, [str(GOLD), "--model", "ggx"])
+    assert rc == 0 and doc["converged"]
+    assert page.scripts == 0 and page.links == []
+    assert len(page.images) == 3  # the fit's sphere, the in-plane slices, the residuals
+    for src in page.images:
+        img = _decoded(src)
+        assert img.ndim == 3 and img.shape[0] > 50 and img[..., :3].std() > 0.01
+    # the parameters: value, standard error and interval as the fit gave them
+    alpha, se = doc["params"]["alpha"], doc["stderr"]["alpha"]
+    k = page.cells.index("alpha")
+    assert page.cells[k + 1] == _num(alpha)
+    assert page.cells[k + 3] == f"[{_num(alpha - Z95 * se)}, {_num(alpha + Z95 * se)}]"
+    for region in doc["regions"]:
+        k = page.cells.index(region["region"])
+        assert page.cells[k + 1] == str(region["samples"])
+    assert "cannot be rendered from themselves" in text
+    assert f"brdf-fit fit {GOLD} --model ggx --report" in text
+
+
+def test_report_path_is_checked_before_the_fit(tmp_path, capsys):
+    assert main(["fit", str(GOLD), "--model", "ggx", "--report", str(tmp_path / "r.txt")]) == 2
+    err = capsys.readouterr().err
+    assert "--report expects .html" in err
+
+
+@pytest.fixture(scope="module")
+def merl_report(tmp_path_factory):
+    """A report of ggx fitted to a MERL file made from ggx (30,000 samples of it)."""
+    from brdf_fit.io.merl import write_merl
+
+    d = tmp_path_factory.mktemp("report")
+    path = d / "ggx.binary"
+    write_merl(path, registry.get("ggx").build(alpha=0.25, f0=np.array([0.9, 0.6, 0.3])))
+    out = d / "r.html"
+    rc = main(["fit", str(path), "--model", "ggx", "--max-samples", "30000", "--quiet",
+               "--report", str(out)])
+    return rc, out
+
+
+@pytest.mark.slow
+def test_report_of_merl_data(merl_report):
+    rc, out = merl_report
+    assert rc == 0
+    pytest.importorskip("flip_evaluator", reason="flip-evaluator is not installed")
+    page = _Page()
+    text = out.read_text(encoding="utf-8")
+    page.feed(text)
+    # data and fit rendered, FLIP, in-plane slices, residuals, the Rusinkiewicz slice
+    assert len(page.images) == 6
+    for src in page.images:  # (the FLIP map of a near-perfect fit is nearly black: std 0.01)
+        assert _decoded(src)[..., :3].std() > 0.001
+    mean = float(text.split("mean over the sphere: <b>")[1].split("<")[0])
+    assert 0.0 <= mean < 0.01  # a fit of the model that made the data
+
+
+def _screenshot(chromium: str, page: pathlib.Path, png: pathlib.Path) -> np.ndarray:
+    subprocess.run([chromium, "--headless=new", "--no-sandbox", "--disable-gpu",
+                    "--hide-scrollbars", f"--screenshot={png}", "--window-size=1200,3200",
+                    page.as_uri()], check=True, capture_output=True, timeout=120)
+    return matplotlib.image.imread(png)[..., :3]
+
+
+@pytest.mark.slow
+def test_report_opens_in_a_browser(merl_report, tmp_path):
+    chromium = shutil.which("chromium") or shutil.which("chromium-browser")
+    if chromium is None:
+        pytest.skip("Debian's chromium is not installed (.ci/run installs it)")
+    _, out = merl_report
+    shot = _screenshot(chromium, out, tmp_path / "page.png")
+    assert shot.std() > 0.05  # not blank
+    # the same page with every image removed: the images are what differs, over their area
+    text = out.read_text(encoding="utf-8")
+    bare = tmp_path / "bare.html"
+    parts = text.split('src="data:image/png;base64,')
+    bare.write_text(parts[0] + "".join('src="' + p.split('"', 1)[1] for p in parts[1:]),
+                    encoding="utf-8")
+    bare_shot = _screenshot(chromium, bare, tmp_path / "bare.png")
+    changed = np.abs(shot - bare_shot).max(-1) > 0.1
+    assert changed.mean() > 0.05, changed.mean()  # 9.5% measured (figures are mostly white)
+    # the three square renders (data, fit, FLIP map) have a black background outside the
+    # sphere, 35% of 256^2 each; the page's own colours are white and dark grey (#222)
+    black = lambda a: int((a.max(-1) < 0.03).sum())  # noqa: E731
+    assert black(shot) > 3 * 20_000 and black(bare_shot) < 1_000, (black(shot),
+                                                                    black(bare_shot))
