@@ -153,6 +153,14 @@ def _print_candidates(sel) -> None:
         from brdf_fit.fitting.problem import UNDETERMINED_RULE
 
         print(f"  undetermined by the data ({UNDETERMINED_RULE}): " + "; ".join(und))
+    gains = [c for c in sel.candidates if c.lobe_gain is not None]
+    if gains:
+        print("  what each extension's extra lobe buys (its base's error minus its own; an "
+              "extension costs at least its base in the choice):")
+        for c in gains:
+            g = c.lobe_gain
+            print(f"    {c.model} over {g['base']}: {g['error_removed']:+.4g} "
+                  f"({100 * g['fraction_removed']:+.1f}% of the base's error)")
 
 
 def _select_scene(args, names, checks) -> int:

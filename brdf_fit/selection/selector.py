@@ -37,12 +37,15 @@ candidate without a committed figure (a user's own entry) makes every candidate'
 the live one, and the result says so (``cost_rule``).
 
 **The choice**: the cheapest candidate whose error is within the budget (ties: fewer parameters,
-then the lower error); ``None`` when none is. Without a budget the default is stated in the
-result: twice the error of the best candidate, at least 1.5 times the noise level when the
-data carry sigma (``sqrt(sum w sigma^2 cos_i^2 / sum w f^2 cos_i^2)``, the error a perfect model
-would show), and at least :data:`BUDGET_FLOOR` (1%): noise-free samples of a formula (a scene's
-MTL or glTF material) would otherwise get a budget of 2e-16, which only the formula itself
-meets. The Pareto front (no other candidate both cheaper and more accurate) is reported.
+then the lower error); ``None`` when none is. A model that extends another by a lobe
+(:mod:`brdf_fit.selection.nesting`) costs at least its base there, so the base wins whenever
+both are within the budget, and each such lobe's gain (the error it removes) is reported.
+Without a budget the default is stated in the result: twice the error of the best candidate, at
+least 1.5 times the noise level when the data carry sigma (``sqrt(sum w sigma^2 cos_i^2 / sum w
+f^2 cos_i^2)``, the error a perfect model would show), and at least :data:`BUDGET_FLOOR` (1%):
+noise-free samples of a formula (a scene's MTL or glTF material) would otherwise get a budget of
+2e-16, which only the formula itself meets. The Pareto front (no other candidate both cheaper
+and more accurate) is reported.
 
 **A ceiling, never a multiple of a bad error.** Above an absolute error no candidate counts as
 representing the material, whatever the budget rule says: :data:`CEILING_ABOVE_NOISE` (0.05)
@@ -65,13 +68,10 @@ entries whose ``target`` is it, plus the entries that export to it exactly:
 from __future__ import annotations
 
 import dataclasses
-import functools
-import json
 import math
 import time
 from collections.abc import Callable, Sequence
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -82,7 +82,14 @@ from brdf_fit.fitting.problem import FitError
 from brdf_fit.fitting.single import fit, json_floats
 from brdf_fit.models._base import evaluate
 from brdf_fit.selection.anisotropy import AnisotropyTest, detect_anisotropy
-from brdf_fit.verify.catalogue import COST_FILE
+from brdf_fit.selection.costs import (  # noqa: F401 (re-exported)
+    COST_PAIRS,
+    COST_ROUNDS,
+    committed_costs,
+    live_cost,
+    measure_cost,
+)
+from brdf_fit.selection.nesting import base_of, choice_costs, lobe_gains
 
 __all__ = ["ANISOTROPIC_CANDIDATES", "CEILING_ABOVE_NOISE", "COST_PAIRS", "COST_ROUNDS",
            "DEFAULT_CANDIDATES", "ERROR_DEFINITION", "EXACT_EXPORTS", "FAMILIES", "TARGETS",
@@ -174,13 +181,6 @@ def anisotropic_candidates(target: str | None) -> tuple[str, ...]:
     return ANISOTROPIC_CANDIDATES[target]
 
 
-def committed_costs() -> dict[str, float]:
-    """Each entry's committed evaluation cost relative to Lambert (module docstring), from
-    ``brdf_fit/resources/catalogue_cost.json``."""
-    doc = _cost_table()
-    return {k: float(v["eval"]) for k, v in doc.get("relative", {}).items()}
-
-
 def family_candidates(family: str) -> tuple[str, ...]:
     """The registry names of a named family (:data:`FAMILIES`; ``"all"``: every non-delta
     entry). An unknown family is a ``ValueError`` that lists the known ones."""
@@ -192,9 +192,6 @@ def family_candidates(family: str) -> tuple[str, ...]:
     return FAMILIES[family]
 
 
-#: direction pairs per timed call of :func:`measure_cost` and timed calls per candidate
-COST_PAIRS = 16384
-COST_ROUNDS = 7
 #: the default budget: this many times the best candidate's error ...
 BUDGET_FACTOR_BEST = 2.0
 #: ... and at least this many times the noise level (data with sigma)
@@ -237,46 +234,6 @@ def noise_level(data: GonioData) -> float | None:
     return float(math.sqrt(np.sum(w * (data.sigma * c) ** 2) / den)) if den > 0 else None
 
 
-@functools.cache
-def _cost_table() -> dict:
-    try:
-        return json.loads(COST_FILE.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return {}
-
-
-def _directions(n: int, seed: int = 0):
-    rng = np.random.default_rng(seed)
-
-    def hemi(k):
-        u1, u2 = rng.random(k), rng.random(k)
-        r = np.sqrt(u1)
-        return np.stack([r * np.cos(2 * np.pi * u2), r * np.sin(2 * np.pi * u2),
-                         np.sqrt(1.0 - u1)], -1)
-
-    return hemi(n), hemi(n)
-
-
-def measure_cost(model, n: int = COST_PAIRS, rounds: int = COST_ROUNDS) -> float:
-    """Nanoseconds per evaluation of ``model.eval`` under ``jit`` (module docstring), of the
-    model as a renderer holds it (:meth:`~brdf_fit.models.AbstractBRDF.prepared`: tables a
-    plugin builds once per material are not charged to every pair)."""
-    wi, wo = (jnp.asarray(a) for a in _directions(n))
-    leaves, treedef = jax.tree_util.tree_flatten(model.prepared())
-
-    @jax.jit
-    def run(leaves, wi, wo):
-        return jax.tree_util.tree_unflatten(treedef, leaves).eval(wi, wo)
-
-    jax.block_until_ready(run(leaves, wi, wo))  # compile
-    best = float("inf")
-    for _ in range(rounds):
-        t0 = time.perf_counter()
-        jax.block_until_ready(run(leaves, wi, wo))
-        best = min(best, time.perf_counter() - t0)
-    return best / n * 1e9
-
-
 def _num(x):
     """A float for strict JSON: NaN and inf (a candidate without a fit) as None."""
     return float(x) if math.isfinite(x) else None
@@ -308,6 +265,11 @@ class Candidate:
     #: entries of the fit the data do not determine (as
     #: :attr:`brdf_fit.fitting.single.FitResult.undetermined`)
     undetermined: tuple = ()
+    #: the entry this one extends by a lobe (:data:`brdf_fit.selection.nesting.NESTED`), and
+    #: what that lobe buys here where the base was fitted too
+    #: (:func:`~brdf_fit.selection.nesting.lobe_gains`)
+    extends: str | None = None
+    lobe_gain: dict | None = None
     fitted: object = None  # the fitted model object (not serialised)
 
     def to_dict(self) -> dict:
@@ -327,6 +289,7 @@ class Candidate:
             "reduced_chi2": self.reduced_chi2, "checks": self.checks,
             "seconds": round(self.seconds, 3), "message": self.message,
             "undetermined": list(self.undetermined),
+            "extends": self.extends, "lobe_gain": self.lobe_gain,
         }
 
 
@@ -463,22 +426,12 @@ def _candidate(name, r, data, n_res, checks, costs, measure, t0) -> Candidate:
         for c in run_checks(name, params={p: np.asarray(v) for p, v in r.params.items()},
                             checks=checks):
             status[c.check] = c.status
-    cost = _cost(name, r.model, costs) if measure else float("nan")
+    cost = live_cost(name, r.model, costs) if measure else float("nan")
     return Candidate(
         model=name, params=r.params, stderr=r.stderr, error=err,
         cost_ns=cost, n_params=k, aic=aic, bic=bic, cost_rel=committed_costs().get(name),
         converged=bool(r.converged), reduced_chi2=chi2, checks=status,
         seconds=time.perf_counter() - t0, undetermined=r.undetermined, fitted=r.model)
-
-
-def _cost(name, model, costs) -> float:
-    """The live cost of ``model`` (ns per evaluation), from ``costs`` when it holds ``name``."""
-    if costs is not None and name in costs:
-        return costs[name]
-    cost = measure_cost(model)
-    if costs is not None:
-        costs[name] = cost
-    return cost
 
 
 #: families to suggest when nothing represents a material, by what the data showed
@@ -567,7 +520,7 @@ def select(data: GonioData, candidates: Sequence[str] | None = None, budget: flo
             out = list(pool.map(one, entries))
         for c in out:
             if not c.message:
-                c.cost_ns = _cost(c.model, c.fitted, costs)
+                c.cost_ns = live_cost(c.model, c.fitted, costs)
     if progress is not None:
         progress(len(entries), len(entries), "done")
     noise = noise_level(data)
@@ -614,6 +567,12 @@ def select(data: GonioData, candidates: Sequence[str] | None = None, budget: flo
         cost_rule = ("live: " + ", ".join(missing) + " not in the committed cost table, so "
                      "every candidate is compared by this run's measured ns/eval")
         cost_key = {c.model: c.cost_ns for c in fitted}
+    # an extra lobe never makes a model cheaper (brdf_fit.selection.nesting): with its base's
+    # cost an extension loses the tie-break (fewer parameters) whenever both are within budget
+    cost_key = choice_costs(cost_key)
+    gains = lobe_gains({c.model: c.error for c in fitted})
+    for c in out:
+        c.extends, c.lobe_gain = base_of(c.model), gains.get(c.model)
     out.sort(key=lambda c: (bool(c.message), cost_key.get(c.model, 0.0), c.n_params, c.error))
     ok = [c for c in out if c.within_budget]
     choice = min(ok, key=lambda c: (cost_key[c.model], c.n_params, c.error)).model if ok else None
