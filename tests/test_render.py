@@ -154,6 +154,9 @@ def test_command(tmp_path, capsys):
     (["render", "ggx", "-o", "X.jpg"], "expects .png or .exr"),
     (["render", "ggx", "-o", "X.png", "--light-zenith-deg", "95"], "must be in [0, 90)"),
     (["render", "nosuch", "-o", "X.png"], "nosuch"),
+    (["render", "ggx", "--irradiance", "abc", "-o", "X.png"], "not a number"),
+    (["render", "ggx", "--irradiance", "1,-2,3", "-o", "X.png"], "finite and >= 0"),
+    (["render", "ggx", "--irradiance", "1,2", "-o", "X.png"], "one value or 3"),
     (["render", "ggx", "--fit", "F.json", "-o", "X.png"], "no MODEL or --param"),
 ])
 def test_command_errors(tmp_path, capsys, monkeypatch, argv, fragment):

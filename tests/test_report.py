@@ -96,6 +96,10 @@ def test_report_path_is_checked_before_the_fit(tmp_path, capsys):
     assert main(["fit", str(GOLD), "--model", "ggx", "--report", str(tmp_path / "r.txt")]) == 2
     err = capsys.readouterr().err
     assert "--report expects .html" in err
+    assert main(["fit", str(GOLD), "--model", "ggx,lambert", "--report",
+                 str(tmp_path / "r.html")]) == 2
+    assert "--report is the page of one fit" in capsys.readouterr().err
+    assert not (tmp_path / "r.html").exists()
 
 
 @pytest.fixture(scope="module")

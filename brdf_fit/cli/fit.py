@@ -139,6 +139,9 @@ def run(args) -> int:
     use_x64()
     models = [m.strip() for m in args.model.split(",") if m.strip()]
     if len(args.data) > 1 or len(models) > 1 or args.table is not None or args.shard:
+        if args.report is not None:
+            raise CLIError("--report is the page of one fit (one file, one model); a database "
+                           "run writes its table and figure (--table)")
         return run_database(args, models)
     if args.processes is not None:
         raise CLIError("--processes shares a database run (several files or models, --table)")

@@ -46,6 +46,20 @@ def _from_fit(path: str, reg):
     return entry, params
 
 
+def _irradiance(text: str | None) -> list[float] | None:
+    """``--irradiance``: non-negative finite numbers, comma-separated."""
+    if text is None:
+        return None
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        raise CLIError(f"--irradiance: {text!r} is not a number or comma-separated "
+                       "numbers") from None
+    if not all(0.0 <= v < float("inf") for v in values):
+        raise CLIError(f"--irradiance: {text!r}: every value must be finite and >= 0")
+    return values
+
+
 def run(args) -> int:
     check_output_file(args.output, (".png", ".exr"), "-o")
     if args.size > MAX_SIZE:
@@ -75,14 +89,19 @@ def run(args) -> int:
             raise CLIError(f"{args.data}: --data renders dense MERL .binary data only (sparse "
                            "data cannot be rendered from themselves: render a fit of them)")
         table = read_merl_table(args.data)
-    irradiance = [float(v) for v in args.irradiance.split(",")] if args.irradiance else None
+    irradiance = _irradiance(args.irradiance)
     use_x64()
     from brdf_fit import render
 
     light = (args.size, args.light_zenith_deg, args.light_azimuth_deg,
              render.IRRADIANCE if irradiance is None else irradiance)
+    model = None if entry is None else entry.build(**params)
+    channels = 3 if model is None else max(3, model.channels() or 1)
+    if irradiance is not None and len(irradiance) not in (1, channels):
+        raise CLIError(f"--irradiance: one value or {channels} (one per channel), got "
+                       f"{len(irradiance)}")
     t0 = time.perf_counter()
-    image = None if entry is None else render.render_sphere(entry.build(**params), *light)
+    image = None if model is None else render.render_sphere(model, *light)
     measured = None if table is None else render.render_sphere(render.MerlTable(table), *light)
     flip = None
     if image is not None and measured is not None:
