@@ -6,13 +6,14 @@ same scene (issue 46).
 The scene of :mod:`brdf_fit.render`: a unit sphere, an orthographic camera, a directional light
 at 45 degrees, direct illumination only, ``--size`` x ``--size`` pixels. Per model
 (``mitsuba-roughconductor``, ``mitsuba-roughplastic``, ``ggx``, ``disney``): the first call in
-this process (it compiles the model's program for this size) and the best of ``--repeats``
-warm calls with new parameter values each time (what a user changing a slider waits for).
-The baseline, in the same run: Mitsuba 3's ``mi.render`` of the same scene at one sample per
-pixel with its ``direct`` integrator, in the ``scalar_rgb`` variant (best of ``--repeats``,
-after a first render), for the two Mitsuba models; ``llvm_ad_rgb`` too where Dr.Jit finds
-LLVM (``DRJIT_LIBLLVM_PATH``). Mitsuba renders 1 jittered sample per pixel; ours evaluates
-the pixel centres: the same number of BSDF evaluations.
+this process (it compiles the model's program for this size) and the best of ``--repeats`` warm
+calls with new parameter values each time (what a user changing a slider waits for). Then the
+same under a constant environment at 64 samples per pixel (multiple importance sampling). The
+baseline, in the same run: Mitsuba 3's ``mi.render`` of the same scene at one sample per pixel
+(64 under the environment) with its ``direct`` integrator, in the ``scalar_rgb`` variant (best
+of ``--repeats``, after a first render), for the two Mitsuba models; ``llvm_ad_rgb`` too where
+Dr.Jit finds LLVM (``DRJIT_LIBLLVM_PATH``). Mitsuba renders 1 jittered sample per pixel; ours
+evaluates the pixel centres: the same number of BSDF evaluations.
 """
 
 from __future__ import annotations
@@ -60,7 +61,30 @@ def time_ours(name: str, size: int, repeats: int) -> dict:
     return {"first_s": first, "warm_best_s": min(warm), "warm_s": warm}
 
 
-def time_mitsuba(name: str, size: int, repeats: int, variant: str) -> dict | None:
+#: samples per pixel of the timed environment previews
+ENV_SPP = 64
+
+
+def time_ours_environment(name: str, size: int, repeats: int) -> dict:
+    """A constant environment at :data:`ENV_SPP` samples per pixel: first call, best warm."""
+    from brdf_fit.render import render_sphere_environment
+
+    entry = registry.get(name)
+    key, values = MODELS[name]
+    t = time.perf_counter()
+    render_sphere_environment(entry.build(), size, samples_per_pixel=ENV_SPP)
+    first = time.perf_counter() - t
+    warm = []
+    for k in range(max(1, repeats // 2)):
+        t = time.perf_counter()
+        render_sphere_environment(entry.build(**{key: values[k % len(values)]}), size,
+                                  samples_per_pixel=ENV_SPP, seed=k + 1)
+        warm.append(time.perf_counter() - t)
+    return {"first_s": first, "warm_best_s": min(warm), "warm_s": warm}
+
+
+def time_mitsuba(name: str, size: int, repeats: int, variant: str,
+                 environment: bool = False) -> dict | None:
     try:
         import mitsuba as mi
 
@@ -78,16 +102,19 @@ def time_mitsuba(name: str, size: int, repeats: int, variant: str) -> dict | Non
                    "sampler": {"type": "independent", "sample_count": 1}},
         "sphere": {"type": "sphere",
                    "bsdf": to_mitsuba(name, {}, verify=False).scene_dict},
-        "light": {"type": "directional", "direction": [-np.sin(theta), 0.0, -np.cos(theta)],
-                  "irradiance": {"type": "rgb", "value": IRRADIANCE}},
+        "light": ({"type": "constant", "radiance": {"type": "rgb", "value": 1.0}}
+                  if environment else
+                  {"type": "directional", "direction": [-np.sin(theta), 0.0, -np.cos(theta)],
+                   "irradiance": {"type": "rgb", "value": IRRADIANCE}}),
     })
+    spp = ENV_SPP if environment else 1
     t = time.perf_counter()
-    np.asarray(mi.render(scene, spp=1))
+    np.asarray(mi.render(scene, spp=spp))
     first = time.perf_counter() - t
     warm = []
-    for _ in range(repeats):
+    for _ in range(repeats if not environment else max(1, repeats // 2)):
         t = time.perf_counter()
-        np.asarray(mi.render(scene, spp=1))
+        np.asarray(mi.render(scene, spp=spp))
         warm.append(time.perf_counter() - t)
     return {"first_s": first, "warm_best_s": min(warm), "warm_s": warm}
 
@@ -101,10 +128,13 @@ def main() -> None:
     info = machine_info()
     rows = []
     for name in MODELS:
-        row = {"model": name, "ours": time_ours(name, args.size, args.repeats)}
+        row = {"model": name, "ours": time_ours(name, args.size, args.repeats),
+               "ours_environment": time_ours_environment(name, args.size, args.repeats)}
         if name.startswith("mitsuba-"):
             for variant in ("scalar_rgb", "llvm_ad_rgb"):
                 row[variant] = time_mitsuba(name, args.size, args.repeats, variant)
+                row[variant + "_environment"] = time_mitsuba(name, args.size, args.repeats,
+                                                             variant, environment=True)
         rows.append(row)
         print(json.dumps(row))
     doc = {"command": "python benchmarks/bench_render.py " + " ".join(sys.argv[1:]),
@@ -135,6 +165,20 @@ def main() -> None:
         cells = [row["model"], cell(row["ours"])]
         for variant in ("scalar_rgb", "llvm_ad_rgb"):
             d = row.get(variant)
+            cells += [cell(d), "n/a" if d is None or "skipped" in d
+                      else f"{d['warm_best_s'] / ours:.2f}x"]
+        lines.append("| " + " | ".join(cells) + " |")
+    lines += ["", f"A constant environment, {ENV_SPP} samples per pixel (ours: multiple "
+              "importance sampling of the model's sampler and the environment's, one of each "
+              "per sample; Mitsuba: `direct` with its `constant` emitter, which samples the "
+              "emitter and the BSDF too). Ours: best of the warm calls and the first.", "",
+              "| model | ours | Mitsuba scalar_rgb | ratio | Mitsuba llvm_ad_rgb | ratio |",
+              "|---|---:|---:|---:|---:|---:|"]
+    for row in rows:
+        ours = row["ours_environment"]["warm_best_s"]
+        cells = [row["model"], cell(row["ours_environment"])]
+        for variant in ("scalar_rgb", "llvm_ad_rgb"):
+            d = row.get(variant + "_environment")
             cells += [cell(d), "n/a" if d is None or "skipped" in d
                       else f"{d['warm_best_s'] / ours:.2f}x"]
         lines.append("| " + " | ".join(cells) + " |")

@@ -1,6 +1,6 @@
-"""Previews: a sphere shaded with a model under a directional light, as a linear image
-(issue 46's first part: environments, measured data rendered from themselves, FLIP and the
-report page are not built yet).
+"""Previews: a sphere shaded with a model under a directional light or a constant
+environment, as a linear image; dense measured data rendered from themselves; NVIDIA's FLIP
+between two renders (issue 46).
 
 The scene, and Mitsuba 3's equivalent (``tests/test_render.py`` renders it there too):
 
@@ -17,7 +17,12 @@ The scene, and Mitsuba 3's equivalent (``tests/test_render.py`` renders it there
   ``sphere`` shape: the direction of ``dp/du``; ``(1, 0, 0)`` at the pole, the image centre)
   and ``t = n x s``.
 
-With the default ``E = pi`` a white Lambertian surface facing the light renders 1. The sRGB
+With the default ``E = pi`` a white Lambertian surface facing the light renders 1.
+
+Under a constant environment of radiance ``L`` (:func:`render_sphere_environment`) a pixel is
+``L`` times the directional albedo at its view direction, estimated at the pixel centre by
+multiple importance sampling (Veach 1997, ch. 9) of the model's own sampler and the
+environment's (uniform on the sphere), with each pixel's standard error. The sRGB
 PNG is ``clip(L 2^exposure, 0, 1)`` encoded with the sRGB transfer function (IEC 61966-2-1,
 through colour-science), 8 bits; the OpenEXR file keeps ``L`` linear (float32).
 """
@@ -25,13 +30,15 @@ through colour-science), 8 bits; the OpenEXR file keeps ``L`` linear (float32).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import pathlib
 
 import numpy as np
 
-__all__ = ["FLIP_EXTRA", "FRAME_HALF_WIDTH", "IRRADIANCE", "MerlTable", "SphereImage",
-           "flip_error", "render_sphere", "write_image"]
+__all__ = ["FLIP_EXTRA", "FRAME_HALF_WIDTH", "HEURISTICS", "IRRADIANCE", "EnvironmentImage",
+           "MerlTable", "SphereImage", "flip_error", "render_sphere",
+           "render_sphere_environment", "write_image"]
 
 #: half the width of the square the image covers, in sphere radii (a 10% margin)
 FRAME_HALF_WIDTH = 1.1
@@ -124,6 +131,138 @@ def render_sphere(model, size: int = 256, light_zenith_deg: float = 45.0,
     return SphereImage(radiance=L.reshape(size, size, channels),
                        mask=m.reshape(size, size), cos_view=cos_view.reshape(size, size),
                        light=light, irradiance=np.array(E))
+
+
+@dataclasses.dataclass
+class EnvironmentImage(SphereImage):
+    """A sphere under a constant environment (:func:`render_sphere_environment`): besides the
+    radiance, ``stderr`` ``(size, size, C)``, each pixel's standard error (the spread of its
+    per-sample estimates over the square root of their number), and the estimator's settings."""
+
+    stderr: np.ndarray | None = None
+    samples_per_pixel: int = 0
+    heuristic: str = "balance"
+
+
+#: the multiple-importance-sampling weights :func:`render_sphere_environment` offers (Veach
+#: 1997, ch. 9, eq. 9.13 and the power heuristic of eq. 9.14 with beta = 2)
+HEURISTICS = ("balance", "power")
+
+
+def _environment_estimates(model, wo, key, spp: int, power: bool):
+    """``(mean, stderr)`` per pixel of ``int f(wi, wo) cos(theta_i) dwi`` (times the
+    environment's radiance, applied by the caller) by multiple importance sampling of two
+    strategies, one sample each per pass: the model's own sampler (``sample``, density
+    ``pdf``), and the constant environment's, uniform on the sphere (density 1/(4 pi): half
+    its samples fall below the surface and add 0). Each sample's weight is the balance or the
+    power heuristic of the two densities (Veach 1997, eqs. 9.13-9.14)."""
+    import jax
+    import jax.numpy as jnp
+
+    P = wo.shape[0]
+    k1, k2, k3 = jax.random.split(key, 3)
+    wo_s = jnp.broadcast_to(wo[:, None, :], (P, spp, 3))
+    uc = jax.random.uniform(k1, (P, spp), wo.dtype)
+    u = jax.random.uniform(k2, (P, spp, 2), wo.dtype)
+    v = jax.random.uniform(k3, (P, spp, 2), wo.dtype)
+    p_env = 1.0 / (4.0 * jnp.pi)
+
+    def weight(p_self, p_other):
+        if power:
+            return p_self * p_self / (p_self * p_self + p_other * p_other)
+        return p_self / (p_self + p_other)
+
+    def contribution(wi, p_self, p_other):
+        f = model.eval(wi, wo_s).reshape(P, spp, -1)
+        cos = jnp.maximum(wi[..., 2], 0.0)
+        ok = (cos > 0.0) & (p_self > 0.0) & jnp.isfinite(p_self)
+        w = jnp.where(ok, weight(p_self, p_other) * cos / jnp.where(ok, p_self, 1.0), 0.0)
+        return f * w[..., None]
+
+    s = model.sample(wo_s, uc, u)
+    p_b = s.pdf
+    c_b = contribution(s.wi, p_b, jnp.where(s.wi[..., 2] > 0.0, p_env, 0.0))
+    z = 1.0 - 2.0 * v[..., 0]  # uniform on the sphere (Archimedes: z uniform in [-1, 1])
+    r = jnp.sqrt(jnp.maximum(1.0 - z * z, 0.0))
+    phi = 2.0 * jnp.pi * v[..., 1]
+    wi_e = jnp.stack([r * jnp.cos(phi), r * jnp.sin(phi), z], -1)
+    p_b_at_e = jnp.where(z > 0.0, model.pdf(wi_e, wo_s), 0.0)
+    c_e = contribution(wi_e, jnp.full(z.shape, p_env, wo.dtype), p_b_at_e)
+    x = c_b + c_e  # one estimate per pass
+    mean = jnp.mean(x, 1)
+    stderr = jnp.std(x, 1, ddof=1) / jnp.sqrt(spp)
+    return mean, stderr
+
+
+#: samples (pixels x samples per pixel) per compiled call of the environment estimate
+ENV_BLOCK_SAMPLES = 1 << 18
+
+
+def render_sphere_environment(model, size: int = 128, radiance=1.0, samples_per_pixel: int = 64,
+                              seed: int = 0, heuristic: str = "balance",
+                              progress=None) -> EnvironmentImage:
+    """The sphere of :func:`render_sphere` lit by a constant environment of ``radiance`` (a
+    number or one per channel) from every direction above each point's surface (a convex
+    sphere does not occlude itself), estimated at each pixel centre with
+    ``samples_per_pixel`` passes of multiple importance sampling (the model's sampler and the
+    environment's uniform one; ``heuristic``: :data:`HEURISTICS`). The exact value is
+    ``radiance`` times the model's directional albedo at the pixel's view direction; the
+    image carries each pixel's standard error. Models with a delta lobe (a mirror) have no
+    density to weigh and are refused. The pixels go in blocks of :data:`ENV_BLOCK_SAMPLES`
+    samples; ``progress(done, total)`` is called after each block."""
+    import jax
+    import jax.numpy as jnp
+
+    if heuristic not in HEURISTICS:
+        raise ValueError(f"render: heuristic must be one of {HEURISTICS}, got {heuristic!r}")
+    if samples_per_pixel < 2:
+        raise ValueError(f"render: samples_per_pixel must be >= 2, got {samples_per_pixel}")
+    if getattr(model, "is_delta", False):
+        raise ValueError("render: a model with a delta lobe has no density for an environment "
+                         "estimate")
+    _, wo, _, m, cos_view = sphere_geometry(int(size), np.array([0.0, 0.0, 1.0]))
+    on = np.flatnonzero(m)
+    dtype = jnp.zeros(()).dtype
+    estimate = _environment_program(heuristic == "power", int(samples_per_pixel))
+    # pixels in blocks of one size (one compiled program; memory bounded by the block), each
+    # block its own random stream (the seed folded with the block's index)
+    block = max(1, ENV_BLOCK_SAMPLES // int(samples_per_pixel))
+    n_blocks = -(-len(on) // block)
+    means, ses = [], []
+    for b in range(n_blocks):
+        part = wo[on[b * block:(b + 1) * block]]
+        pad = block - len(part)
+        if pad:
+            part = np.concatenate([part, np.broadcast_to([0.0, 0.0, 1.0], (pad, 3))])
+        key = jax.random.fold_in(jax.random.key(seed), b)
+        mean_b, se_b = estimate(model, jnp.asarray(part, dtype), key)
+        means.append(np.asarray(mean_b, float)[: block - pad])
+        ses.append(np.asarray(se_b, float)[: block - pad])
+        if progress is not None:
+            progress(b + 1, n_blocks)
+    mean = np.concatenate(means).reshape(len(on), -1)
+    se = np.concatenate(ses).reshape(len(on), -1)
+    channels = max(3, mean.shape[1])
+    L = np.broadcast_to(np.asarray(radiance, float).reshape(-1), (channels,))
+    out = np.zeros((size * size, channels))
+    err = np.zeros((size * size, channels))
+    out[on] = np.broadcast_to(mean, (len(on), channels)) * L
+    err[on] = np.broadcast_to(se, (len(on), channels)) * L
+    return EnvironmentImage(radiance=out.reshape(size, size, channels),
+                            mask=m.reshape(size, size), cos_view=cos_view.reshape(size, size),
+                            light=np.zeros(3), irradiance=np.array(L),
+                            stderr=err.reshape(size, size, channels),
+                            samples_per_pixel=int(samples_per_pixel), heuristic=heuristic)
+
+
+@functools.cache
+def _environment_program(power: bool, spp: int):
+    """The compiled estimate of one heuristic and sample count (one program per model type
+    and pixel count)."""
+    import equinox as eqx
+
+    return eqx.filter_jit(lambda model, wo, key: _environment_estimates(model, wo, key, spp,
+                                                                         power))
 
 
 def flip_error(reference: SphereImage, test: SphereImage) -> tuple[np.ndarray, float]:

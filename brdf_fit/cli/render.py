@@ -46,18 +46,25 @@ def _from_fit(path: str, reg):
     return entry, params
 
 
-def _irradiance(text: str | None) -> list[float] | None:
-    """``--irradiance``: non-negative finite numbers, comma-separated."""
+def _irradiance(text: str | None, flag: str = "--irradiance") -> list[float] | None:
+    """``--irradiance`` (or ``--environment``): non-negative finite numbers, comma-separated."""
     if text is None:
         return None
     try:
         values = [float(v) for v in text.split(",")]
     except ValueError:
-        raise CLIError(f"--irradiance: {text!r} is not a number or comma-separated "
-                       "numbers") from None
+        raise CLIError(f"{flag}: {text!r} is not a number or comma-separated numbers") from None
     if not all(0.0 <= v < float("inf") for v in values):
-        raise CLIError(f"--irradiance: {text!r}: every value must be finite and >= 0")
+        raise CLIError(f"{flag}: {text!r}: every value must be finite and >= 0")
     return values
+
+
+def _relative_stderr(image) -> float:
+    """The median over the sphere's pixels and channels of standard error / estimate."""
+    on = image.mask
+    est, se = image.radiance[on], image.stderr[on]
+    ok = est > 0
+    return float(np.median(se[ok] / est[ok])) if ok.any() else 0.0
 
 
 def run(args) -> int:
@@ -100,8 +107,30 @@ def run(args) -> int:
     if irradiance is not None and len(irradiance) not in (1, channels):
         raise CLIError(f"--irradiance: one value or {channels} (one per channel), got "
                        f"{len(irradiance)}")
+    environment = _irradiance(args.environment, "--environment")
+    if environment is not None:
+        if model is None or table is not None:
+            raise CLIError("--environment renders a MODEL or --fit (dense data have no "
+                           "sampler: they render under the directional light)")
+        if len(environment) not in (1, channels):
+            raise CLIError(f"--environment: one value or {channels} (one per channel), got "
+                           f"{len(environment)}")
+        if getattr(model, "is_delta", False):
+            raise CLIError(f"--environment: {entry.name} has a delta lobe (no density for a "
+                           "sampled estimate)")
     t0 = time.perf_counter()
-    image = None if model is None else render.render_sphere(model, *light)
+    if environment is not None:
+        from brdf_fit.cli._progress import progress_callback
+
+        bar, progress = progress_callback(not args.quiet and args.size * args.size
+                                          * args.spp > 1 << 20, "rendering the environment")
+        try:
+            image = render.render_sphere_environment(model, args.size, environment, args.spp,
+                                                     args.seed, args.heuristic, progress)
+        finally:
+            bar.close()
+    else:
+        image = None if model is None else render.render_sphere(model, *light)
     measured = None if table is None else render.render_sphere(render.MerlTable(table), *light)
     flip = None
     if image is not None and measured is not None:
@@ -138,9 +167,13 @@ def run(args) -> int:
            "flip_out": str(flip_out) if flip is not None else None,
            "flip_mean": None if flip is None else flip[1],
            "size": args.size,
-           "light": {"zenith_deg": args.light_zenith_deg,
-                     "azimuth_deg": args.light_azimuth_deg,
-                     "irradiance": shown.irradiance.tolist()},
+           "environment": None if environment is None else {
+               "radiance": image.irradiance.tolist(), "samples_per_pixel": args.spp,
+               "heuristic": args.heuristic, "seed": args.seed,
+               "stderr_relative_median": _relative_stderr(image)},
+           "light": None if environment is not None else {
+               "zenith_deg": args.light_zenith_deg, "azimuth_deg": args.light_azimuth_deg,
+               "irradiance": shown.irradiance.tolist()},
            "exposure_stops": args.exposure,
            "radiance_max": on.max(0).tolist() if on.size else None,
            "radiance_mean": on.mean(0).tolist() if on.size else None,
@@ -152,12 +185,18 @@ def run(args) -> int:
         what = (args.data if entry is None else
                 f"{entry.name}{f' ({what})' if what else ''}"
                 + (f" beside {args.data}" if measured is not None else ""))
-        print(f"{what}: sphere {args.size}x{args.size}, "
-              f"light at {args.light_zenith_deg:g} deg zenith, {args.light_azimuth_deg:g} deg "
-              f"azimuth, irradiance {fmt(shown.irradiance)}; largest radiance "
+        lit = ("a constant environment" if environment is not None else
+               f"light at {args.light_zenith_deg:g} deg zenith, {args.light_azimuth_deg:g} deg "
+               f"azimuth, irradiance {fmt(shown.irradiance)}")
+        print(f"{what}: sphere {args.size}x{args.size}, {lit}; largest radiance "
               f"{fmt(doc['radiance_max'] or 0.0)}; {seconds:.2f} s")
         if flip is not None:
             print(f"FLIP (data -> model), mean over the sphere: {flip[1]:.4g}")
+        if environment is not None:
+            print(f"constant environment of radiance {fmt(image.irradiance)}: {args.spp} "
+                  f"samples per pixel, multiple importance sampling ({args.heuristic} "
+                  f"heuristic); median relative standard error "
+                  f"{_relative_stderr(image):.3g}")
         for path in outs.written:
             print(f"wrote {path}")
     return outs.status()
@@ -178,6 +217,19 @@ def add_parser(sub) -> None:
                    help="dense MERL data rendered from themselves (trilinear between the bin "
                         "centres), written as NAME_data beside -o; with a MODEL or --fit also "
                         "NAME_flip.png, NVIDIA's FLIP between the two (its mean in the output)")
+    r.add_argument("--environment", default=None, metavar="L",
+                   help="light the sphere by a constant environment of radiance L (a number or "
+                        "one per channel) instead of the directional light, estimated with "
+                        "multiple importance sampling of the model's sampler and the "
+                        "environment's")
+    r.add_argument("--spp", type=positive_int, default=64, metavar="N",
+                   help="--environment: samples per pixel, each one of both strategies "
+                        "(default 64); the output gives the estimate's standard error")
+    r.add_argument("--heuristic", choices=("balance", "power"), default="balance",
+                   help="--environment: the MIS weights (Veach 1997: balance, or power with "
+                        "beta = 2)")
+    r.add_argument("--seed", type=int, default=0, help="--environment: the random seed")
+    r.add_argument("--quiet", action="store_true", help="no progress bar")
     r.add_argument("--size", type=positive_int, default=256, metavar="N",
                    help="image side in pixels (default 256)")
     r.add_argument("--light-zenith-deg", type=float, default=45.0, metavar="DEG",
