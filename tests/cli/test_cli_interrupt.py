@@ -13,11 +13,10 @@ in ``Py_FinalizeEx`` destroying ``PjRtClient`` and the crashed thread in
 The program here swaps ``brdf-fit models``' run for one that compiles a program XLA takes over a
 second to compile (1.7 s on 2 AMD EPYC cores) and sends itself SIGINT 0.25 s into the compile.
 The negative control runs the same command through ``sys.exit(main(...))``, the shutdown the
-program had before, and crashes.
+program had before, on a longer compile (:data:`CONTROL_STEPS`), and crashes.
 """
 
 import os
-import resource
 import subprocess
 import sys
 
@@ -29,9 +28,15 @@ DELAY_S = 0.25
 #: a chain of this many where/sin/cos/sqrt steps: 1.7 s to compile on 2 AMD EPYC cores, 0.3 s
 #: to trace and lower (which happens before the signal's timer starts)
 STEPS = 400
+#: the negative control's chain: a compile of about 6 s, so that the interpreter's shutdown
+#: certainly comes while it runs (with the 1.7 s one, on a machine loaded by the rest of the
+#: suite, the compile sometimes ended before the shutdown reached the client: no crash in 2 of
+#: 3 runs under AVX2 beside the slow set, where idle runs crashed 5 of 5)
+CONTROL_STEPS = 1500
 
 PROGRAM = """
-import os, signal, sys, threading
+import os, resource, signal, sys, threading
+resource.setrlimit(resource.RLIMIT_CORE, (0, 0))  # the control's crash leaves no core file
 import jax, jax.numpy as jnp
 import brdf_fit.cli.models as models
 from brdf_fit.cli.main import main, run
@@ -54,15 +59,13 @@ models.run = compile_until_stopped
 """
 
 
-def _no_core_files():
-    resource.setrlimit(resource.RLIMIT_CORE, (0, 0))  # the control's crash leaves no core file
-
-
-def _stopped_mid_compile(end: str) -> subprocess.CompletedProcess:
+def _stopped_mid_compile(end: str, steps: int = STEPS) -> subprocess.CompletedProcess:
     env = {**os.environ, "BRDF_FIT_NO_CACHE": "1"}  # every run compiles; no user cache touched
-    code = PROGRAM.format(steps=STEPS, delay=DELAY_S, end=end)
+    code = PROGRAM.format(steps=steps, delay=DELAY_S, end=end)
+    # (no preexec_fn: a fork of this process, where JAX runs threads, warns, and the suite
+    # turns warnings into errors)
     return subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
-                          timeout=300, preexec_fn=_no_core_files)
+                          timeout=300)
 
 
 @pytest.mark.slow
@@ -78,7 +81,7 @@ def test_a_command_stopped_while_compiling_exits_130():
 def test_negative_control_the_normal_shutdown_crashes():
     """If this starts passing, jaxlib no longer crashes here: run()'s os._exit can go (and
     this control with it)."""
-    p = _stopped_mid_compile("sys.exit(main(['models']))")
+    p = _stopped_mid_compile("sys.exit(main(['models']))", CONTROL_STEPS)
     assert "compiled before the signal" not in p.stdout
     assert "brdf-fit: interrupted" in p.stderr  # the command itself stopped as it should
     assert p.returncode == -11, (p.returncode, p.stderr[-2000:])
