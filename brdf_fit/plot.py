@@ -180,7 +180,9 @@ def residuals(data: GonioData, models: Sequence[tuple[str, object]], title: str 
             ax.set_ylabel("ln(model / measured)")
     for ax in axes[n:]:
         ax.set_visible(False)
-    axes[0].legend(fontsize=7, markerscale=3)
+    # a fixed corner: matplotlib's "best" searches every point (slow for a MERL file's million,
+    # and it warns)
+    axes[0].legend(fontsize=7, markerscale=3, loc="upper right")
     if title:
         fig.suptitle(title)
     return fig
