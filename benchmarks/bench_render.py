@@ -148,6 +148,20 @@ def main() -> None:
             return "n/a"
         return f"{d['warm_best_s'] * 1e3:.1f} ms (first {d['first_s']:.2f} s)"
 
+    def table(suffix: str) -> list[str]:
+        """The markdown table of one lighting (``suffix``: "" directional, "_environment")."""
+        out = ["| model | ours | Mitsuba scalar_rgb | ratio | Mitsuba llvm_ad_rgb | ratio |",
+               "|---|---:|---:|---:|---:|---:|"]
+        for row in rows:
+            ours = row["ours" + suffix]
+            cells = [row["model"], cell(ours)]
+            for variant in ("scalar_rgb", "llvm_ad_rgb"):
+                d = row.get(variant + suffix)
+                cells += [cell(d), "n/a" if d is None or "skipped" in d
+                          else f"{d['warm_best_s'] / ours['warm_best_s']:.2f}x"]
+            out.append("| " + " | ".join(cells) + " |")
+        return out
+
     lines = ["# Sphere previews: brdf_fit.render against Mitsuba 3 (issue 46)", "",
              f"Command: `{doc['command']}`  ",
              f"Date: {info['date_utc']}  ",
@@ -158,30 +172,12 @@ def main() -> None:
              f"of {args.repeats}) and, in brackets, the first call in the process (compiling). "
              "Mitsuba 3: `mi.render` at 1 sample per pixel, `direct` integrator (best of "
              f"{args.repeats} after a first render). Ratio: Mitsuba's warm time over ours.", "",
-             "| model | ours | Mitsuba scalar_rgb | ratio | Mitsuba llvm_ad_rgb | ratio |",
-             "|---|---:|---:|---:|---:|---:|"]
-    for row in rows:
-        ours = row["ours"]["warm_best_s"]
-        cells = [row["model"], cell(row["ours"])]
-        for variant in ("scalar_rgb", "llvm_ad_rgb"):
-            d = row.get(variant)
-            cells += [cell(d), "n/a" if d is None or "skipped" in d
-                      else f"{d['warm_best_s'] / ours:.2f}x"]
-        lines.append("| " + " | ".join(cells) + " |")
+             *table("")]
     lines += ["", f"A constant environment, {ENV_SPP} samples per pixel (ours: multiple "
               "importance sampling of the model's sampler and the environment's, one of each "
               "per sample; Mitsuba: `direct` with its `constant` emitter, which samples the "
               "emitter and the BSDF too). Ours: best of the warm calls and the first.", "",
-              "| model | ours | Mitsuba scalar_rgb | ratio | Mitsuba llvm_ad_rgb | ratio |",
-              "|---|---:|---:|---:|---:|---:|"]
-    for row in rows:
-        ours = row["ours_environment"]["warm_best_s"]
-        cells = [row["model"], cell(row["ours_environment"])]
-        for variant in ("scalar_rgb", "llvm_ad_rgb"):
-            d = row.get(variant + "_environment")
-            cells += [cell(d), "n/a" if d is None or "skipped" in d
-                      else f"{d['warm_best_s'] / ours:.2f}x"]
-        lines.append("| " + " | ".join(cells) + " |")
+              *table("_environment")]
     with open(os.path.join(args.out, "render.md"), "w", encoding="utf-8") as fh:
         fh.write("\n".join(lines) + "\n")
     print("\n".join(lines))

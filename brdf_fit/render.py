@@ -38,7 +38,7 @@ import numpy as np
 
 __all__ = ["FLIP_EXTRA", "FRAME_HALF_WIDTH", "HEURISTICS", "IRRADIANCE", "EnvironmentImage",
            "MerlTable", "SphereImage", "flip_error", "render_sphere",
-           "render_sphere_environment", "write_image"]
+           "render_sphere_environment", "write_image", "write_png"]
 
 #: half the width of the square the image covers, in sphere radii (a 10% margin)
 FRAME_HALF_WIDTH = 1.1
@@ -302,6 +302,19 @@ def srgb_8bit(radiance, exposure: float = 0.0) -> np.ndarray:
     return np.round(colour.cctf_encoding(v, function="sRGB") * 255.0).astype(np.uint8)
 
 
+def write_png(path, pixels) -> pathlib.Path:
+    """``(H, W, 3)`` uint8 ``pixels`` as a PNG file, whole or not at all
+    (:func:`brdf_fit.core.atomic.atomic_path`)."""
+    import matplotlib.image
+
+    from brdf_fit.core.atomic import atomic_path
+
+    path = pathlib.Path(path)
+    with atomic_path(path) as tmp:
+        matplotlib.image.imsave(tmp, pixels, format="png")
+    return path
+
+
 def write_image(path, image: SphereImage, exposure: float = 0.0) -> pathlib.Path:
     """Write ``image`` as ``.png`` (sRGB, 8 bits, :func:`srgb_8bit`) or ``.exr`` (linear
     float32 R, G, B, and A = the sphere's mask), by the suffix; whole or not at all
@@ -313,11 +326,7 @@ def write_image(path, image: SphereImage, exposure: float = 0.0) -> pathlib.Path
     if suffix not in (".png", ".exr"):
         raise ValueError(f"{path}: unknown image extension {path.suffix!r}; use .png or .exr")
     if suffix == ".png":
-        import matplotlib.image
-
-        pixels = srgb_8bit(image.radiance, exposure)
-        with atomic_path(path) as tmp:
-            matplotlib.image.imsave(tmp, pixels, format="png")
+        write_png(path, srgb_8bit(image.radiance, exposure))
     else:
         from brdf_fit.io.exr import write_exr
 

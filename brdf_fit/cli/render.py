@@ -149,15 +149,8 @@ def run(args) -> int:
         outs.write("-o", data_out, lambda: [render.write_image(data_out, measured,
                                                                  args.exposure)])
     if flip is not None:
-        def write_flip():
-            import matplotlib.image
-
-            from brdf_fit.core.atomic import atomic_path
-
-            with atomic_path(flip_out) as tmp:
-                matplotlib.image.imsave(tmp, render.error_map_8bit(flip[0]), format="png")
-            return [flip_out]
-        outs.write("-o", flip_out, write_flip)
+        outs.write("-o", flip_out,
+                   lambda: [render.write_png(flip_out, render.error_map_8bit(flip[0]))])
     shown = image if image is not None else measured
     on = shown.radiance[shown.mask]
     doc = {"model": None if entry is None else entry.name,
@@ -196,7 +189,7 @@ def run(args) -> int:
             print(f"constant environment of radiance {fmt(image.irradiance)}: {args.spp} "
                   f"samples per pixel, multiple importance sampling ({args.heuristic} "
                   f"heuristic); median relative standard error "
-                  f"{_relative_stderr(image):.3g}")
+                  f"{doc['environment']['stderr_relative_median']:.3g}")
         for path in outs.written:
             print(f"wrote {path}")
     return outs.status()
