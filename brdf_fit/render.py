@@ -226,7 +226,10 @@ def render_sphere_environment(model, size: int = 128, radiance=1.0, samples_per_
     estimate = _environment_program(heuristic == "power", int(samples_per_pixel))
     # pixels in blocks of one size (one compiled program; memory bounded by the block), each
     # block its own random stream (the seed folded with the block's index)
-    block = max(1, ENV_BLOCK_SAMPLES // int(samples_per_pixel))
+    # (a small image gets a block of its own size, to the next power of two, instead of
+    # paying for a whole one: 0.9 s for a 16 x 16 sphere at 64 spp with the full block)
+    block = max(1, min(ENV_BLOCK_SAMPLES // int(samples_per_pixel),
+                       1 << max(0, len(on) - 1).bit_length()))
     n_blocks = -(-len(on) // block)
     means, ses = [], []
     for b in range(n_blocks):
