@@ -5,6 +5,7 @@ before any work, data read and written with one-line errors, and the fit options
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import os
 import sys
@@ -56,6 +57,70 @@ class Terminated(BaseException):
 def raise_terminated(signum, frame):
     """The SIGTERM handler of every command: :class:`Terminated` in the main thread."""
     raise Terminated()
+
+
+#: seconds after a stop is lost in a callback that it is raised again (SIGALRM): long enough
+#: for the interpreter to leave the hook that saw it, short beside any person's wait
+REDELIVER_S = 0.01
+
+
+@contextlib.contextmanager
+def stop_signals():
+    """A command's signal handling: SIGTERM raises :class:`Terminated` in the main thread (as
+    SIGINT raises KeyboardInterrupt), and a stop that lands in a callback is raised again.
+
+    Python runs a signal's handler in whatever the main thread is doing, which may be a
+    callback whose exceptions the interpreter does not propagate: a garbage-collection callback
+    (JAX registers one, ``_xla_gc_callback``) or a ``__del__``. The stop exception was then
+    printed as "Exception ignored in ..." with a traceback and lost, and the process ran on
+    (a ``--processes`` worker until its launcher's SIGKILL). While this is active,
+    :data:`sys.unraisablehook` takes such a stop silently and raises it again
+    :data:`REDELIVER_S` later from a SIGALRM handler (a timer, not a signal sent from the hook:
+    ``signal.raise_signal`` runs the handler at once, inside the hook). A redelivery that lands
+    in a callback again is taken the same way. Anything else goes to the previous hook.
+    Outside the main thread signals are left to whoever owns them, and nothing is installed."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous_term = signal.signal(signal.SIGTERM, raise_terminated)
+    previous_hook = sys.unraisablehook
+    lost: list[type[BaseException]] = []  # a stop taken by the hook, not yet raised again
+    in_hook = [False]
+    previous_alarm = []  # SIGALRM's handler before the first redelivery was armed
+
+    def raise_lost(signum, frame):
+        if in_hook[0]:  # the timer ran out inside the hook itself: later
+            signal.setitimer(signal.ITIMER_REAL, REDELIVER_S)
+        elif lost:
+            raise lost.pop()()
+
+    def take_lost_stop(unraisable):
+        exc_type = unraisable.exc_type
+        if (exc_type is None or not issubclass(exc_type, (Terminated, KeyboardInterrupt))
+                or not hasattr(signal, "setitimer")):
+            previous_hook(unraisable)
+            return
+        in_hook[0] = True
+        try:
+            lost[:] = [exc_type]
+            if not previous_alarm:
+                previous_alarm.append(signal.signal(signal.SIGALRM, raise_lost))
+            signal.setitimer(signal.ITIMER_REAL, REDELIVER_S)
+        finally:
+            in_hook[0] = False
+
+    sys.unraisablehook = take_lost_stop
+    try:
+        yield
+    finally:
+        sys.unraisablehook = previous_hook
+        if previous_alarm:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            signal.signal(signal.SIGALRM, previous_alarm[0])
+        signal.signal(signal.SIGTERM, previous_term)
 
 
 def load_registry():

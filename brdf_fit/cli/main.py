@@ -29,7 +29,7 @@ from brdf_fit.cli import (
 from brdf_fit.cli._common import (
     Terminated,
     memory_size,
-    raise_terminated,
+    stop_signals,
     user_errors,
 )
 from brdf_fit.cli._processes import LAUNCHED_ENV
@@ -181,7 +181,6 @@ def run(argv: list[str] | None = None) -> NoReturn:
 def main(argv: list[str] | None = None) -> int:
     """Run one command and return its exit status (the tests call it in-process; the program
     is :func:`run`)."""
-    import signal
     import warnings
 
     args = build_parser().parse_args(argv)
@@ -192,9 +191,14 @@ def main(argv: list[str] | None = None) -> int:
     shown = warnings.showwarning
     warnings.showwarning = _show_warning
     try:
-        previous = signal.signal(signal.SIGTERM, raise_terminated)
-    except ValueError:  # not the main thread: leave signals to whoever owns it
-        previous = None
+        with stop_signals():  # SIGTERM raises Terminated; a stop lost in a callback comes again
+            return _dispatch(args)
+    finally:
+        warnings.showwarning = shown
+
+
+def _dispatch(args) -> int:
+    """The command, with a stop, a user error and a failed write each turned into its status."""
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:
@@ -219,7 +223,3 @@ def main(argv: list[str] | None = None) -> int:
                 print(json.dumps({"error": msg, "exit_status": 2}))
             return 2
         raise
-    finally:
-        warnings.showwarning = shown
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
