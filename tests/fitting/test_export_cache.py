@@ -107,6 +107,24 @@ def test_stale_and_corrupt_programs_are_never_used(tmp_path, monkeypatch):
     assert len(list(folder.rglob("tiny-*.bin"))) == 3
 
 
+def test_outputs_fed_back_reuse_the_program(tmp_path, monkeypatch):
+    """An exported program's outputs are committed arrays; fed back into it (as a solver's
+    iterate is), they must not make jax.jit lower the program a second time (the chunked fit
+    loaded each of its programs twice before the arguments were committed, issue 44)."""
+    from tests._helpers import counting_compiles
+
+    monkeypatch.setenv(_export.ENV, str(tmp_path / "exported"))
+    f = _export.ExportedCall(jax.jit(lambda x: x * 0.5 + 1.0), "feedback", "k")
+    x = jnp.asarray(np.arange(4.0))  # made by jnp.asarray: not committed
+    assert not x.committed
+    y = f(x)
+    assert y.committed
+    with counting_compiles() as seen:
+        z = f(f(y))
+    assert seen == []
+    np.testing.assert_allclose(np.asarray(z), ((np.arange(4.0) * 0.5 + 1) * 0.5 + 1) * 0.5 + 1)
+
+
 def test_old_generations_and_the_flat_layout_are_pruned(tmp_path, monkeypatch):
     """Programs of other package sources or JAX versions can never be used again: writing a
     program keeps the current generation and the KEEP_GENERATIONS - 1 most recently used
