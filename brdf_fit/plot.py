@@ -147,7 +147,12 @@ def in_plane_slices(
 def residuals(data: GonioData, models: Sequence[tuple[str, object]], title: str | None = None):
     """Per-sample log residuals ``ln(model/measured)`` against the half-vector angle, one panel
     per model, every channel; dashed lines at +-1 median relative sigma when the data have
-    uncertainties."""
+    uncertainties. Under each panel, where the misfit is: the rms of the log ratio in each
+    region of the geometry (:func:`brdf_fit.fitting.regions.residuals_by_region`, the numbers
+    ``fit`` prints), each bar labelled with the model's mean reading there (``+5%``: the model
+    reads 5% high), the largest in red."""
+    from brdf_fit.fitting.regions import residuals_by_region
+
     h = data.wi + data.wo
     h = h / np.linalg.norm(h, axis=-1, keepdims=True)
     th = np.degrees(np.arctan2(np.hypot(h[:, 0], h[:, 1]), h[:, 2]))
@@ -155,15 +160,18 @@ def residuals(data: GonioData, models: Sequence[tuple[str, object]], title: str 
     n = len(models)
     cols = min(n, 3)
     rows = math.ceil(n / cols)
-    fig = _figure(4.0 * cols, 3.0 * rows)
-    axes = fig.subplots(rows, cols, squeeze=False).ravel()
+    fig = _figure(4.0 * cols, 4.6 * rows)
+    grid = fig.add_gridspec(2 * rows, cols, height_ratios=[3.0, 1.6] * rows)
+    axes = [fig.add_subplot(grid[2 * (k // cols), k % cols]) for k in range(n)]
+    bars = [fig.add_subplot(grid[2 * (k // cols) + 1, k % cols]) for k in range(n)]
     rel_sigma = None
     if data.sigma is not None:
         good = used & (data.value > 0)
         if good.any():
             rel_sigma = float(np.median(data.sigma[good] / data.value[good]))
     colours = ["tab:red", "tab:green", "tab:blue"] if data.n_channels == 3 else None
-    for k, (ax, (label, model)) in enumerate(zip(axes, models, strict=False)):
+    keep = used.any(axis=1)  # the region summary reads the samples the fit used
+    for k, (ax, bx, (label, model)) in enumerate(zip(axes, bars, models, strict=True)):
         m = np.broadcast_to(_eval(model, data.wi, data.wo), data.value.shape)
         for c in range(data.n_channels):
             ok = used[:, c] & (data.value[:, c] > 0) & (m[:, c] > 0)
@@ -178,14 +186,36 @@ def residuals(data: GonioData, models: Sequence[tuple[str, object]], title: str 
         ax.set_xlabel("theta_h [deg]")
         if k % cols == 0:
             ax.set_ylabel("ln(model / measured)")
-    for ax in axes[n:]:
-        ax.set_visible(False)
+        _region_bars(bx, residuals_by_region(model, data.wi[keep], data.wo[keep],
+                                             data.value[keep]), first=k % cols == 0)
     # a fixed corner: matplotlib's "best" searches every point (slow for a MERL file's million,
     # and it warns)
     axes[0].legend(fontsize=7, markerscale=3, loc="upper right")
     if title:
         fig.suptitle(title)
     return fig
+
+
+def _region_bars(ax, rows: list[dict], first: bool) -> None:
+    """Bars of ``rms_log_ratio`` per region (rows of ``residuals_by_region``), the largest red,
+    each labelled with its mean factor; an empty region is named and left without a bar."""
+    names = [r["region"] for r in rows]
+    rms = np.array([r["rms_log_ratio"] for r in rows], float)
+    finite = np.isfinite(rms)
+    worst = int(np.nanargmax(np.where(finite, rms, -np.inf))) if finite.any() else -1
+    y = np.arange(len(rows))
+    ax.barh(y[finite], rms[finite], color=["tab:red" if i == worst else "0.6"
+                                           for i in np.flatnonzero(finite)])
+    top = float(np.max(rms[finite])) if finite.any() else 1.0
+    for i, r in enumerate(rows):
+        text = (f"{100 * r['mean_factor']:+.2g}%  ({r['samples']:,})" if finite[i]
+                else "no samples")
+        ax.text((rms[i] if finite[i] else 0.0) + 0.02 * top, i, text, va="center", fontsize=6)
+    ax.set_yticks(y, names if first else [""] * len(names), fontsize=7)
+    ax.invert_yaxis()
+    ax.set_xlim(0.0, 1.45 * top if top > 0 else 1.0)
+    ax.tick_params(axis="x", labelsize=7)
+    ax.set_xlabel("rms of ln(model / measured), by region", fontsize=7)
 
 
 def rusinkiewicz_slices(table, models: Sequence[tuple[str, object]], phi_d_deg: float = 90.0,
