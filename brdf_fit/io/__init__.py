@@ -1,4 +1,5 @@
-"""Measured-data formats: gonioreflectometer CSV, MERL binary, npz with a JSON sidecar; and the
+"""Measured-data formats: gonioreflectometer CSV, MERL binary, RGL-EPFL ``.bsdf`` (read at
+chosen directions, :mod:`brdf_fit.io.rgl`), npz with a JSON sidecar; and the
 Wavefront MTL material reader (:mod:`brdf_fit.io.mtl`: materials, not GonioData, so not in
 :func:`read`).
 
@@ -17,13 +18,15 @@ from brdf_fit.io.csv import read_csv, write_csv
 from brdf_fit.io.merl import merl_lookup, read_merl, read_merl_table, write_merl
 from brdf_fit.io.mtl import MtlError, MtlMaterial, MtlReadResult, parse_mtl, read_mtl
 from brdf_fit.io.npz import read_npz, write_npz
+from brdf_fit.io.rgl import read_rgl
 
 __all__ = ["read", "write", "read_csv", "write_csv", "read_merl", "read_merl_table",
-           "merl_lookup", "write_merl", "read_npz", "write_npz", "READ_FORMATS", "WRITE_FORMATS",
-           "read_mtl", "parse_mtl", "MtlError", "MtlMaterial", "MtlReadResult"]
+           "merl_lookup", "write_merl", "read_npz", "read_rgl", "write_npz", "READ_FORMATS",
+           "WRITE_FORMATS", "read_mtl", "parse_mtl", "MtlError", "MtlMaterial", "MtlReadResult"]
 
 #: extension -> reader; ``.json`` is the sidecar of an ``.npz`` file
-READ_FORMATS = {".csv": read_csv, ".npz": read_npz, ".json": read_npz, ".binary": read_merl}
+READ_FORMATS = {".csv": read_csv, ".npz": read_npz, ".json": read_npz, ".binary": read_merl,
+                ".bsdf": read_rgl}
 #: extensions :func:`write` accepts
 WRITE_FORMATS = (".csv", ".npz")
 
@@ -33,13 +36,14 @@ def _ext(path) -> str:
 
 
 def read(path) -> GonioData:
-    """:class:`~brdf_fit.data.GonioData` from ``.csv``, ``.npz`` (or its ``.json`` sidecar) or a
-    MERL ``.binary`` file, chosen by the extension. Raises :class:`~brdf_fit.data.DataError`
+    """:class:`~brdf_fit.data.GonioData` from ``.csv``, ``.npz`` (or its ``.json`` sidecar), a
+    MERL ``.binary`` file or an RGL ``.bsdf`` file (at :func:`brdf_fit.io.rgl.
+    default_directions`), chosen by the extension. Raises :class:`~brdf_fit.data.DataError`
     naming the file for an unknown extension, a missing file or bad content."""
     ext = _ext(path)
     if ext not in READ_FORMATS:
         raise DataError(f"{path}: unknown data format {ext or '(no extension)'!r}; expected .csv, "
-                        ".npz (with its .json sidecar) or a MERL .binary")
+                        ".npz (with its .json sidecar), a MERL .binary or an RGL .bsdf")
     if not os.path.exists(path):
         raise DataError(f"{path}: no such file")
     return READ_FORMATS[ext](path)
