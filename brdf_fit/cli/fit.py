@@ -214,8 +214,8 @@ def add_parser(sub) -> None:
     f = sub.add_parser("fit", help="fit a registry model to measured data (or many files to "
                                    "several models: --table)")
     f.add_argument("data", nargs="+",
-                   help="data file: .csv, .npz (or its .json sidecar), MERL .binary; with "
-                        "--table any number of files and folders (a database run)")
+                   help="data file: .csv, .npz (or its .json sidecar), MERL .binary, RGL "
+                        ".bsdf; with --table any number of files and folders (a database run)")
     add_fit_options(f, what="drop", models="registry name (see 'brdf-fit models'); with --table "
                                         "a comma-separated list")
     f.add_argument("--solver", default="lm",

@@ -110,8 +110,9 @@ def run(args) -> int:
 def add_parser(sub) -> None:
     fb = sub.add_parser("fit-batch", help="fit one registry model to many data files at once "
                                           "(brdf_fit.fit_batch)")
-    fb.add_argument("data", nargs="*", help="data files (.csv, .npz, MERL .binary); files with "
-                                            "equal sample counts are fitted in one batch")
+    fb.add_argument("data", nargs="*", help="data files (.csv, .npz, MERL .binary, RGL .bsdf); "
+                                            "files with equal sample counts are fitted in one "
+                                            "batch")
     fb.add_argument("--values", default=None, metavar="FILE.npy",
                     help="instead of files, with --out-dir: an (N, M, C) or (N, M) array of "
                          "N problems (memory-mapped), on one geometry (--geometry); writes "

@@ -20,7 +20,7 @@ from brdf_fit.cli._common import (
 from brdf_fit.cli._processes import child_argv, launch, stop_children
 
 #: data file extensions a folder given to `fit` is searched for
-_DATA_EXTS = (".binary", ".csv", ".npz")
+_DATA_EXTS = (".binary", ".bsdf", ".csv", ".npz")
 
 
 def _database_files(items, exclude=()) -> list[str]:
