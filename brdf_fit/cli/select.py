@@ -156,11 +156,18 @@ def _print_candidates(sel) -> None:
     gains = [c for c in sel.candidates if c.lobe_gain is not None]
     if gains:
         print("  what each extension's extra lobe buys (its base's error minus its own; an "
-              "extension costs at least its base in the choice):")
+              "extension costs at least its base in the choice, and one that would be chosen is "
+              "tested against it: F test of the nested pair, supported at p < 0.01):")
         for c in gains:
             g = c.lobe_gain
+            test = ""
+            if "supported" in g:  # tested: it would have been the choice
+                verdict = ("supported" if g["supported"]
+                           else "NOT supported by the data: passed over")
+                test = (f"; F = {g['f_statistic']:.3g} on {g['df'][0]}, {g['df'][1]} df "
+                        f"({g['metric']}), p = {g['p_value']:.2g}: {verdict}")
             print(f"    {c.model} over {g['base']}: {g['error_removed']:+.4g} "
-                  f"({100 * g['fraction_removed']:+.1f}% of the base's error)")
+                  f"({100 * g['fraction_removed']:+.1f}% of the base's error){test}")
 
 
 def _select_scene(args, names, checks) -> int:

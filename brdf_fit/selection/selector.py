@@ -39,7 +39,10 @@ the live one, and the result says so (``cost_rule``).
 **The choice**: the cheapest candidate whose error is within the budget (ties: fewer parameters,
 then the lower error); ``None`` when none is. A model that extends another by a lobe
 (:mod:`brdf_fit.selection.nesting`) costs at least its base there, so the base wins whenever
-both are within the budget, and each such lobe's gain (the error it removes) is reported.
+both are within the budget, and each such lobe's gain (the error it removes) is reported. An
+extension that would be the choice is first tested against its base (an F test of the nested
+pair, :func:`brdf_fit.selection.nesting.lobe_test`, in ``lobe_gain``): one whose lobe the data
+do not support (p-value not below 1%) is passed over for the next cheapest.
 Without a budget the default is stated in the result: twice the error of the best candidate, at
 least 1.5 times the noise level when the data carry sigma (``sqrt(sum w sigma^2 cos_i^2 / sum w
 f^2 cos_i^2)``, the error a perfect model would show), and at least :data:`BUDGET_FLOOR` (1%):
@@ -89,7 +92,7 @@ from brdf_fit.selection.costs import (  # noqa: F401 (re-exported)
     live_cost,
     measure_cost,
 )
-from brdf_fit.selection.nesting import base_of, choice_costs, lobe_gains
+from brdf_fit.selection.nesting import base_of, choice_costs, lobe_gains, lobe_test
 
 __all__ = ["ANISOTROPIC_CANDIDATES", "CEILING_ABOVE_NOISE", "COST_PAIRS", "COST_ROUNDS",
            "DEFAULT_CANDIDATES", "ERROR_DEFINITION", "EXACT_EXPORTS", "FAMILIES", "TARGETS",
@@ -411,9 +414,9 @@ def _candidate(name, r, data, n_res, checks, costs, measure, t0) -> Candidate:
     rss, den = _radiance_sums(data, m)
     err = float(math.sqrt(rss / den)) if den > 0 else float("inf")
     k = int(sum(np.asarray(v).size for v in r.params.values()))
-    rss = max(rss, 1e-300)
-    aic = n_res * math.log(rss / n_res) + 2 * k
-    bic = n_res * math.log(rss / n_res) + k * math.log(n_res)
+    logs = math.log(max(rss, 1e-300) / n_res)
+    aic = n_res * logs + 2 * k
+    bic = n_res * logs + k * math.log(n_res)
     chi2 = None
     if data.sigma is not None:
         w = _radiance(data)[0] > 0
@@ -432,6 +435,21 @@ def _candidate(name, r, data, n_res, checks, costs, measure, t0) -> Candidate:
         cost_ns=cost, n_params=k, aic=aic, bic=bic, cost_rel=committed_costs().get(name),
         converged=bool(r.converged), reduced_chi2=chi2, checks=status,
         seconds=time.perf_counter() - t0, undetermined=r.undetermined, fitted=r.model)
+
+
+def _lobe_test(data: GonioData, ext: Candidate, base: Candidate, max_steps: int) -> dict:
+    """The F test of ``ext``'s extra lobe against ``base``
+    (:func:`brdf_fit.selection.nesting.lobe_test`) on both models fitted again, from their
+    selection fits, in the default metric (log residuals, over the data's sigma where given:
+    of equal variance under a relative noise, as the test needs; nesting's docstring)."""
+    rss, k = {}, {}
+    for c in (base, ext):
+        r = fit(data, c.model, init={p: np.asarray(v) for p, v in c.params.items()},
+                max_steps=max_steps)
+        rss[c.model], k[c.model] = 2.0 * r.loss, c.n_params
+    n_res = int(np.sum(data.weight > 0))
+    test = lobe_test(rss[base.model], k[base.model], rss[ext.model], k[ext.model], n_res)
+    return {**test, "metric": "log" + (" / sigma" if data.sigma is not None else "")}
 
 
 #: families to suggest when nothing represents a material, by what the data showed
@@ -574,8 +592,17 @@ def select(data: GonioData, candidates: Sequence[str] | None = None, budget: flo
     for c in out:
         c.extends, c.lobe_gain = base_of(c.model), gains.get(c.model)
     out.sort(key=lambda c: (bool(c.message), cost_key.get(c.model, 0.0), c.n_params, c.error))
-    ok = [c for c in out if c.within_budget]
-    choice = min(ok, key=lambda c: (cost_key[c.model], c.n_params, c.error)).model if ok else None
+    ok = sorted((c for c in out if c.within_budget),
+                key=lambda c: (cost_key[c.model], c.n_params, c.error))
+    choice = None
+    for c in ok:  # the cheapest, but an extra lobe only where the data support it
+        if c.lobe_gain is not None:
+            c.lobe_gain.update(_lobe_test(data, c, next(b for b in out
+                                                          if b.model == c.extends), max_steps))
+            if not c.lobe_gain["supported"]:
+                continue
+        choice = c.model
+        break
     represented = bool(best <= ceiling)
     suggestion = None
     if not represented:

@@ -2,14 +2,24 @@
 off evaluates as its base, at the base's non-default parameters), and the selection rules that
 follow from it: an extension never costs less than its base in the choice, and a plain
 material (a glTF plastic with noise) is chosen without the sheen or coat lobe the committed
-table rates cheaper, each extra lobe's gain reported."""
+table rates cheaper, each extra lobe's gain reported; the nested F test (lobe_test) is the F test
+on linear models, and in a selection it passes over a lobe that fits the noise and keeps one
+that is in the data."""
 
 import numpy as np
 import pytest
 from _helpers import random_dirs
 
 from brdf_fit import registry
-from brdf_fit.selection.nesting import NESTED, base_of, choice_costs, lobe_gains, off_params
+from brdf_fit.selection.nesting import (
+    LOBE_TEST_ALPHA,
+    NESTED,
+    base_of,
+    choice_costs,
+    lobe_gains,
+    lobe_test,
+    off_params,
+)
 
 #: base parameter values away from the defaults (coloured, rough, part metal)
 BASE_VALUES = {
@@ -47,6 +57,12 @@ def test_choice_costs_and_gains():
                                 g["gltf-pbr-sheen"]["fraction_removed"]], [0.01, 0.25])
 
 
+#: an in-plane instrument of 52 directions (4 incidences x 13 views)
+PLASTIC_PLAN = {"name": "in_plane", "args": {"theta_i_deg": [0, 20, 40, 60],
+                                             "theta_o_deg": [-75, -60, -45, -30, -15, 0, 10, 20,
+                                                             30, 40, 50, 60, 75]}}
+
+
 @pytest.mark.slow
 def test_a_plain_plastic_gets_no_sheen_or_coat_lobe():
     """A glTF plastic (no sheen, no coat) with 1% noise, selected under --target gltf: the
@@ -59,10 +75,7 @@ def test_a_plain_plastic_gets_no_sheen_or_coat_lobe():
 
     costs = committed_costs()
     assert costs["gltf-pbr-sheen"] < costs["gltf-pbr"]  # what the old rule chose by
-    plan = {"name": "in_plane", "args": {"theta_i_deg": [0, 20, 40, 60],
-                                         "theta_o_deg": [-75, -60, -45, -30, -15, 0, 10, 20,
-                                                         30, 40, 50, 60, 75]}}
-    d = synthesize({"model": "gltf-pbr", "seed": 5, "plan": plan,
+    d = synthesize({"model": "gltf-pbr", "seed": 5, "plan": PLASTIC_PLAN,
                     "params": {"base_color": [0.7, 0.05, 0.04], "metallic": 0.0,
                                "roughness": 0.4},
                     "noise": [{"type": "lognormal", "args": {"sigma": 0.01}}]})
@@ -75,4 +88,83 @@ def test_a_plain_plastic_gets_no_sheen_or_coat_lobe():
         # a lobe that stands for nothing: under a tenth of the plain model's error removed
         assert c.lobe_gain["fraction_removed"] < 0.1, (name, c.lobe_gain)
         assert c.to_dict()["lobe_gain"] == c.lobe_gain
+        assert "supported" not in c.lobe_gain  # the base was the choice: no test was needed
     assert plain.lobe_gain is None and plain.extends is None
+
+    # a budget just below the plain model's error: without the F test the specular or coat
+    # extension, a few % better by fitting the noise, would be the choice; the test finds no
+    # support for either lobe, and nothing is chosen
+    tight = select(d, target="gltf", checks=(), anisotropy=False, budget=0.999 * plain.error)
+    tested = [c for c in tight.candidates if c.lobe_gain and "supported" in c.lobe_gain]
+    assert tested and tight.choice is None, tight.message
+    for c in tested:
+        assert c.within_budget and c.lobe_gain["p_value"] >= LOBE_TEST_ALPHA, c.lobe_gain
+        assert not c.lobe_gain["supported"] and c.lobe_gain["metric"] == "log / sigma"
+
+
+@pytest.mark.slow
+def test_a_lobe_in_the_data_is_supported():
+    """The positive case: a glTF plastic whose specular is scaled down (KHR_materials_specular,
+    factor 0.3) with 1% noise; the plain model cannot lower its specular, the extension can. The
+    F test supports the lobe overwhelmingly and the extension is the choice."""
+    from brdf_fit.selection import select
+    from data_synth.recipes import synthesize
+
+    d = synthesize({"model": "gltf-pbr-specular", "seed": 5, "plan": PLASTIC_PLAN,
+                    "params": {"base_color": [0.7, 0.05, 0.04], "metallic": 0.0,
+                               "roughness": 0.4, "specular_factor": 0.3},
+                    "noise": [{"type": "lognormal", "args": {"sigma": 0.01}}]})
+    s = select(d, target="gltf", checks=(), anisotropy=False)
+    assert s.choice == "gltf-pbr-specular", s.message
+    g = s.candidate("gltf-pbr-specular").lobe_gain
+    assert g["supported"] and g["p_value"] < 1e-10 and g["df"][0] == 4, g
+
+
+def test_lobe_test_is_the_f_test_of_nested_linear_models():
+    """On nested *linear* least-squares models with Gaussian noise the extra-sum-of-squares
+    statistic is exactly F-distributed: under the smaller model (the extra columns' true
+    coefficients 0) the p-values are uniform, so the test rejects at its level; with a real
+    extra term it rejects almost always. Each p-value is checked against SciPy's F tail."""
+
+
+    stats = pytest.importorskip("scipy.stats", reason="SciPy is not installed (the test extra)")
+    rng = np.random.default_rng(40)
+    n, draws = 30, 2000
+    x = np.linspace(0.0, 1.0, n)
+    base = np.stack([np.ones(n), x], 1)  # k = 2
+    ext = np.stack([np.ones(n), x, x * x, np.sin(3 * x)], 1)  # k = 4: two extra scalars
+
+    def rss(X, y):
+        beta, *_ = np.linalg.lstsq(X, y, rcond=None)
+        return float(np.sum((y - X @ beta) ** 2))
+
+    for extra, want_lo, want_hi in ((0.0, None, None), (3.0, 0.95, 1.0)):
+        pvals = []
+        for _ in range(draws):
+            y = 1.0 + 2.0 * x + extra * x * x + 0.1 * rng.standard_normal(n)
+            t = lobe_test(rss(base, y), 2, rss(ext, y), 4, n)
+            assert t["df"] == [2, n - 4]
+            np.testing.assert_allclose(t["p_value"], stats.f.sf(t["f_statistic"], 2, n - 4),
+                                       rtol=1e-6)
+            pvals.append(t["p_value"])
+        rejected = np.mean(np.array(pvals) < LOBE_TEST_ALPHA)
+        if extra == 0.0:
+            # uniform p-values: the rejection rate is the level, within 4 binomial sigmas
+            sd = np.sqrt(LOBE_TEST_ALPHA * (1 - LOBE_TEST_ALPHA) / draws)
+            assert abs(rejected - LOBE_TEST_ALPHA) < 4 * sd, rejected
+            assert stats.kstest(pvals, "uniform").pvalue > 1e-3
+        else:
+            assert want_lo <= rejected <= want_hi, rejected
+
+
+def test_lobe_test_edge_cases():
+
+
+    worse = lobe_test(1.0, 2, 1.5, 4, 100)  # the extension fitted worse: no support
+    assert worse["p_value"] == 1.0 and not worse["supported"]
+    none_left = lobe_test(1.0, 2, 0.5, 4, 4)  # no residual degree of freedom
+    assert not none_left["supported"] and np.isnan(none_left["f_statistic"])
+    exact = lobe_test(1.0, 2, 0.0, 4, 100)  # the extension exact, its base not
+    assert exact["supported"] and exact["p_value"] == 0.0
+    both = lobe_test(0.0, 2, 0.0, 4, 100)  # both exact (noise-free data of the base)
+    assert not both["supported"]
