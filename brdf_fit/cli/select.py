@@ -164,10 +164,16 @@ def _print_candidates(sel) -> None:
             if "supported" in g:  # tested: it would have been the choice
                 verdict = ("supported" if g["supported"]
                            else "NOT supported by the data: passed over")
-                test = (f"; F = {g['f_statistic']:.3g} on {g['df'][0]}, {g['df'][1]} df "
-                        f"({g['metric']}), p = {g['p_value']:.2g}: {verdict}")
+                test = (f"; not tested ({g['message']}): passed over" if g["p_value"] is None
+                        else f"; F = {_fmt_stat(g['f_statistic'])} on {g['df'][0]}, "
+                        f"{g['df'][1]} df ({g['metric']}), p = {g['p_value']:.2g}: {verdict}")
             print(f"    {c.model} over {g['base']}: {g['error_removed']:+.4g} "
                   f"({100 * g['fraction_removed']:+.1f}% of the base's error){test}")
+
+
+def _fmt_stat(v) -> str:
+    """An F statistic for a person: 3 digits, or "inf" for None (an exact extension)."""
+    return "inf" if v is None else f"{v:.3g}"
 
 
 def _select_scene(args, names, checks) -> int:

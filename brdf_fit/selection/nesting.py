@@ -31,6 +31,8 @@ Two rules follow from the nesting, in :func:`brdf_fit.selection.select`:
 
 from __future__ import annotations
 
+import math
+
 __all__ = ["LOBE_TEST_ALPHA", "NESTED", "base_of", "choice_costs", "lobe_gains", "lobe_test",
            "off_params"]
 
@@ -93,7 +95,8 @@ def lobe_test(rss_base: float, k_base: int, rss_ext: float, k_ext: int, n_res: i
     fit's residual sum of squares ``rss`` and free scalars ``k`` on ``n_res`` residuals:
     ``{"f_statistic", "df", "p_value", "supported"}`` (``df``: the two degrees of freedom). No
     residual degree of freedom left, or an extension that fitted no better: p-value 1, not
-    supported."""
+    supported. The statistic is None where it is undefined (no degree of freedom) or infinite
+    (an exact extension), so that the result is strict JSON."""
     from jax.scipy.special import betainc
 
     d1, d2 = int(k_ext) - int(k_base), int(n_res) - int(k_ext)
@@ -104,8 +107,9 @@ def lobe_test(rss_base: float, k_base: int, rss_ext: float, k_ext: int, n_res: i
     else:
         f = ((rss_base - rss_ext) / d1) / (rss_ext / d2)
         p = float(betainc(0.5 * d2, 0.5 * d1, d2 / (d2 + d1 * f)))  # F(d1, d2)'s tail at f
-    return {"f_statistic": float(f), "df": [d1, d2], "p_value": p,
-            "supported": bool(p < LOBE_TEST_ALPHA)}
+    f = float(f)
+    return {"f_statistic": f if math.isfinite(f) else None,  # None: undefined or infinite
+            "df": [d1, d2], "p_value": p, "supported": bool(p < LOBE_TEST_ALPHA)}
 
 
 def lobe_gains(errors: dict[str, float]) -> dict[str, dict]:

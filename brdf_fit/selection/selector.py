@@ -442,14 +442,20 @@ def _lobe_test(data: GonioData, ext: Candidate, base: Candidate, max_steps: int)
     (:func:`brdf_fit.selection.nesting.lobe_test`) on both models fitted again, from their
     selection fits, in the default metric (log residuals, over the data's sigma where given:
     of equal variance under a relative noise, as the test needs; nesting's docstring)."""
-    rss, k = {}, {}
+    metric = "log" + (" / sigma" if data.sigma is not None else "")
+    rss = {}
     for c in (base, ext):
-        r = fit(data, c.model, init={p: np.asarray(v) for p, v in c.params.items()},
-                max_steps=max_steps)
-        rss[c.model], k[c.model] = 2.0 * r.loss, c.n_params
+        try:
+            r = fit(data, c.model, init={p: np.asarray(v) for p, v in c.params.items()},
+                    max_steps=max_steps)
+        except (ParameterError, FitError) as exc:  # untestable: the lobe is not taken
+            return {"f_statistic": None, "df": [ext.n_params - base.n_params, None],
+                    "p_value": None, "supported": False, "metric": metric,
+                    "message": f"{c.model} could not be refitted for the test: {exc}"}
+        rss[c.model] = 2.0 * r.loss
     n_res = int(np.sum(data.weight > 0))
-    test = lobe_test(rss[base.model], k[base.model], rss[ext.model], k[ext.model], n_res)
-    return {**test, "metric": "log" + (" / sigma" if data.sigma is not None else "")}
+    test = lobe_test(rss[base.model], base.n_params, rss[ext.model], ext.n_params, n_res)
+    return {**test, "metric": metric}
 
 
 #: families to suggest when nothing represents a material, by what the data showed

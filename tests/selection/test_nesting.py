@@ -163,8 +163,8 @@ def test_lobe_test_edge_cases():
     worse = lobe_test(1.0, 2, 1.5, 4, 100)  # the extension fitted worse: no support
     assert worse["p_value"] == 1.0 and not worse["supported"]
     none_left = lobe_test(1.0, 2, 0.5, 4, 4)  # no residual degree of freedom
-    assert not none_left["supported"] and np.isnan(none_left["f_statistic"])
+    assert not none_left["supported"] and none_left["f_statistic"] is None
     exact = lobe_test(1.0, 2, 0.0, 4, 100)  # the extension exact, its base not
-    assert exact["supported"] and exact["p_value"] == 0.0
+    assert exact["supported"] and exact["p_value"] == 0.0 and exact["f_statistic"] is None
     both = lobe_test(0.0, 2, 0.0, 4, 100)  # both exact (noise-free data of the base)
     assert not both["supported"]
