@@ -33,8 +33,10 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 __all__ = ["LOBE_TEST_ALPHA", "NESTED", "base_of", "choice_costs", "lobe_gains", "lobe_test",
-           "off_params"]
+           "off_params", "refit_lobe_test"]
 
 #: significance level of :func:`lobe_test`: a lobe is supported by the data when its p-value is
 #: below this. 1% rather than 5%: a selection tests several lobes at once (three glTF
@@ -128,3 +130,29 @@ def lobe_gains(errors: dict[str, float]) -> dict[str, dict]:
         out[name] = {"base": base, "error_removed": eb - err,
                      "fraction_removed": (eb - err) / eb if eb > 0 else 0.0}
     return out
+
+
+def refit_lobe_test(data, ext, base, max_steps: int) -> dict:
+    """The F test of ``ext``'s extra lobe against ``base`` (:func:`lobe_test`; both selection
+    candidates: ``model``, ``params``, ``n_params``) on ``data`` (a GonioData), the two models
+    fitted again from their answers in the default metric (log residuals, over the data's
+    sigma where given: of equal variance under a relative noise, as the test needs; module
+    docstring). A model that cannot be refitted leaves the lobe untested and not supported."""
+    from brdf_fit.core.validate import ParameterError
+    from brdf_fit.fitting.problem import FitError
+    from brdf_fit.fitting.single import fit
+
+    metric = "log" + (" / sigma" if data.sigma is not None else "")
+    rss = {}
+    for c in (base, ext):
+        try:
+            r = fit(data, c.model, init={p: np.asarray(v) for p, v in c.params.items()},
+                    max_steps=max_steps)
+        except (ParameterError, FitError) as exc:  # untestable: the lobe is not taken
+            return {"f_statistic": None, "df": [ext.n_params - base.n_params, None],
+                    "p_value": None, "supported": False, "metric": metric,
+                    "message": f"{c.model} could not be refitted for the test: {exc}"}
+        rss[c.model] = 2.0 * r.loss
+    n_res = int(np.sum(data.weight > 0))
+    test = lobe_test(rss[base.model], base.n_params, rss[ext.model], ext.n_params, n_res)
+    return {**test, "metric": metric}

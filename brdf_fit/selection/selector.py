@@ -92,7 +92,7 @@ from brdf_fit.selection.costs import (  # noqa: F401 (re-exported)
     live_cost,
     measure_cost,
 )
-from brdf_fit.selection.nesting import base_of, choice_costs, lobe_gains, lobe_test
+from brdf_fit.selection.nesting import base_of, choice_costs, lobe_gains, refit_lobe_test
 
 __all__ = ["ANISOTROPIC_CANDIDATES", "CEILING_ABOVE_NOISE", "COST_PAIRS", "COST_ROUNDS",
            "DEFAULT_CANDIDATES", "ERROR_DEFINITION", "EXACT_EXPORTS", "FAMILIES", "TARGETS",
@@ -437,27 +437,6 @@ def _candidate(name, r, data, n_res, checks, costs, measure, t0) -> Candidate:
         seconds=time.perf_counter() - t0, undetermined=r.undetermined, fitted=r.model)
 
 
-def _lobe_test(data: GonioData, ext: Candidate, base: Candidate, max_steps: int) -> dict:
-    """The F test of ``ext``'s extra lobe against ``base``
-    (:func:`brdf_fit.selection.nesting.lobe_test`) on both models fitted again, from their
-    selection fits, in the default metric (log residuals, over the data's sigma where given:
-    of equal variance under a relative noise, as the test needs; nesting's docstring)."""
-    metric = "log" + (" / sigma" if data.sigma is not None else "")
-    rss = {}
-    for c in (base, ext):
-        try:
-            r = fit(data, c.model, init={p: np.asarray(v) for p, v in c.params.items()},
-                    max_steps=max_steps)
-        except (ParameterError, FitError) as exc:  # untestable: the lobe is not taken
-            return {"f_statistic": None, "df": [ext.n_params - base.n_params, None],
-                    "p_value": None, "supported": False, "metric": metric,
-                    "message": f"{c.model} could not be refitted for the test: {exc}"}
-        rss[c.model] = 2.0 * r.loss
-    n_res = int(np.sum(data.weight > 0))
-    test = lobe_test(rss[base.model], base.n_params, rss[ext.model], ext.n_params, n_res)
-    return {**test, "metric": metric}
-
-
 #: families to suggest when nothing represents a material, by what the data showed
 _SUGGEST_ANISO = "anisotropic"
 _SUGGEST_OPEN = "all"
@@ -603,8 +582,9 @@ def select(data: GonioData, candidates: Sequence[str] | None = None, budget: flo
     choice = None
     for c in ok:  # the cheapest, but an extra lobe only where the data support it
         if c.lobe_gain is not None:
-            c.lobe_gain.update(_lobe_test(data, c, next(b for b in out
-                                                          if b.model == c.extends), max_steps))
+            c.lobe_gain.update(refit_lobe_test(data, c, next(b for b in out
+                                                               if b.model == c.extends),
+                                               max_steps))
             if not c.lobe_gain["supported"]:
                 continue
         choice = c.model
