@@ -37,6 +37,10 @@ CONTROL_STEPS = 1500
 PROGRAM = """
 import os, resource, signal, sys, threading
 resource.setrlimit(resource.RLIMIT_CORE, (0, 0))  # the control's crash leaves no core file
+# SIGINT as a terminal gives it: a suite started in the background (`make test-slow &` from a
+# script) has SIGINT ignored, which this child inherits and Python keeps, so the compile ran
+# to its end ("compiled before the signal", both tests failing in such a run)
+signal.signal(signal.SIGINT, signal.default_int_handler)
 import jax, jax.numpy as jnp
 import brdf_fit.cli.models as models
 from brdf_fit.cli.main import main, run
