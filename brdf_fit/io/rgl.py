@@ -90,18 +90,18 @@ def read_tensor_file(path) -> dict[str, np.ndarray]:
             fields, total = {}, 0
             for _ in range(count):
                 fname, dtype, offset, shape = _field_header(f, name)
-                nbytes = int(np.prod(shape, dtype=object)) * dtype.itemsize
+                count_items = int(np.prod(shape, dtype=object))
+                nbytes = count_items * dtype.itemsize
                 if offset + nbytes > size:
                     raise DataError(f"{name}: field {fname!r} ({'x'.join(map(str, shape))} "
                                     f"{dtype.name}) runs past the end of the file "
                                     "(truncated?)")
                 total += nbytes
-                fields[fname] = (dtype, offset, shape)
+                fields[fname] = (dtype, offset, shape, count_items)
             check_bytes(total, f"{name}: its fields")
             out = {}
-            for fname, (dtype, offset, shape) in fields.items():
+            for fname, (dtype, offset, shape, count_items) in fields.items():
                 f.seek(offset)
-                count_items = int(np.prod(shape, dtype=object))
                 out[fname] = np.fromfile(f, dtype=dtype, count=count_items).reshape(shape)
             return out
     except LimitError as e:
@@ -211,12 +211,17 @@ class _Warp:
     def eval(self, pos, values):
         """The bilinear interpolant at ``pos`` (``(x, y)`` in the unit square: x the columns)."""
         weights = self._weights(values)
-        x, y, ix, iy = self._cell(pos)
-        v00 = self._corners(self.data, weights, (iy, ix))
-        v10 = self._corners(self.data, weights, (iy, ix + 1))
-        v01 = self._corners(self.data, weights, (iy + 1, ix))
-        v11 = self._corners(self.data, weights, (iy + 1, ix + 1))
+        x, y, ix, iy, v00, v10, v01, v11 = self._patch(pos, weights)
         return (1 - y) * ((1 - x) * v00 + x * v10) + y * ((1 - x) * v01 + x * v11)
+
+    def _patch(self, pos, weights):
+        """The bilinear patch holding ``pos``: the offsets ``x, y`` inside it, its lower
+        indices ``ix, iy`` and its corner values ``v00, v10, v01, v11`` (``v10``: one column
+        on), interpolated over the parameters."""
+        x, y, ix, iy = self._cell(pos)
+        corners = [self._corners(self.data, weights, (iy + dy, ix + dx))
+                   for dy, dx in ((0, 0), (0, 1), (1, 0), (1, 1))]
+        return (x, y, ix, iy, *corners)
 
     def _cell(self, pos):
         x = np.clip(pos[0], 0.0, 1.0) * (self.cols - 1)
@@ -229,11 +234,7 @@ class _Warp:
         """The point of the unit square that the continuous warp maps to ``pos``: the
         conditional CDF along the row, then the marginal CDF over rows (``invert_continuous``)."""
         weights = self._weights(values)
-        x, y, ix, iy = self._cell(pos)
-        v00 = self._corners(self.data, weights, (iy, ix))
-        v10 = self._corners(self.data, weights, (iy, ix + 1))
-        v01 = self._corners(self.data, weights, (iy + 1, ix))
-        v11 = self._corners(self.data, weights, (iy + 1, ix + 1))
+        x, y, ix, iy, v00, v10, v01, v11 = self._patch(pos, weights)
         c0 = v00 + (v01 - v00) * y
         c1 = v10 + (v11 - v10) * y
         wx, wy = 1.0 / (self.cols - 1), 1.0 / (self.rows - 1)
@@ -274,6 +275,8 @@ class RGLMaterial:
         if not ok:
             raise DataError(f"{name}: inconsistent RGL tables (vndf {vndf.shape}, {table} "
                             f"{spectra.shape}, theta_i {theta_i.size}, phi_i {phi_i.size})")
+        #: the incident directions the tables were measured at (radians)
+        self.theta_i, self.phi_i = theta_i, phi_i
         self.description = bytes(np.asarray(fields.get("description", []), np.uint8)).decode(
             "utf-8", errors="replace")
         self.isotropic = phi_i.size <= 2
@@ -345,8 +348,8 @@ def default_directions(material: RGLMaterial) -> tuple[np.ndarray, np.ndarray]:
     at each of its ``phi_i``; azimuth 0 for an isotropic material) against outgoing directions
     on a regular grid (:data:`DEFAULT_THETA_O_DEG` x :data:`DEFAULT_PHI_O_DEG`): what
     :func:`read_rgl` reads without directions given."""
-    theta_i = material._vndf.params[1].astype(np.float64)
-    phi_i = ([0.0] if material.isotropic else material._vndf.params[0].astype(np.float64))
+    theta_i = material.theta_i.astype(np.float64)
+    phi_i = [0.0] if material.isotropic else material.phi_i.astype(np.float64)
     inc = [(t, p) for p in phi_i for t in theta_i if t < np.radians(89.0)]
     to, po = np.meshgrid(np.radians(DEFAULT_THETA_O_DEG), np.radians(DEFAULT_PHI_O_DEG),
                          indexing="ij")
