@@ -132,9 +132,10 @@ def lobe_gains(errors: dict[str, float]) -> dict[str, dict]:
     return out
 
 
-def refit_lobe_test(data, ext, base, max_steps: int) -> dict:
+def refit_lobe_test(data, ext, base, n_res: int, max_steps: int) -> dict:
     """The F test of ``ext``'s extra lobe against ``base`` (:func:`lobe_test`; both selection
-    candidates: ``model``, ``params``, ``n_params``) on ``data`` (a GonioData), the two models
+    candidates: ``model``, ``params``, ``n_params``) on ``data`` (a GonioData, ``n_res``
+    residuals with weight, as the selection counts them), the two models
     fitted again from their answers in the default metric (log residuals, over the data's
     sigma where given: of equal variance under a relative noise, as the test needs; module
     docstring). A model that cannot be refitted leaves the lobe untested and not supported."""
@@ -153,6 +154,5 @@ def refit_lobe_test(data, ext, base, max_steps: int) -> dict:
                     "p_value": None, "supported": False, "metric": metric,
                     "message": f"{c.model} could not be refitted for the test: {exc}"}
         rss[c.model] = 2.0 * r.loss
-    n_res = int(np.sum(data.weight > 0))
     test = lobe_test(rss[base.model], base.n_params, rss[ext.model], ext.n_params, n_res)
     return {**test, "metric": metric}

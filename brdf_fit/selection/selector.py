@@ -582,9 +582,8 @@ def select(data: GonioData, candidates: Sequence[str] | None = None, budget: flo
     choice = None
     for c in ok:  # the cheapest, but an extra lobe only where the data support it
         if c.lobe_gain is not None:
-            c.lobe_gain.update(refit_lobe_test(data, c, next(b for b in out
-                                                               if b.model == c.extends),
-                                               max_steps))
+            base = next(b for b in out if b.model == c.extends)
+            c.lobe_gain.update(refit_lobe_test(data, c, base, n_res, max_steps))
             if not c.lobe_gain["supported"]:
                 continue
         choice = c.model
