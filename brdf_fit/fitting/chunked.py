@@ -79,6 +79,16 @@ class ChunkedData:
     n_used: int
 
 
+def _put(x, dtype=None):
+    """``x`` (NumPy or a Python number) on the default device, committed: ``jnp.asarray`` of a
+    NumPy array compiles a small program per shape and dtype (``jit(stage)``, and
+    ``jnp.int32(0)`` one more), and its uncommitted result was committed again before every
+    exported program call (:func:`brdf_fit.fitting._export._committed`); ``jax.device_put`` to a
+    device compiles nothing. A fresh process's fit loaded ten such programs from the
+    persistent cache (issue 44)."""
+    return jax.device_put(np.asarray(x, dtype), jax.devices()[0])
+
+
 def chunk_data(problem: FitProblem, arrays, n_used: int, seed: int = 0,
                chunk: int | None = None) -> ChunkedData:
     """:class:`ChunkedData` of ``arrays`` (``wi, wo, f, w, sigma, floor`` as
@@ -107,7 +117,7 @@ def chunk_data(problem: FitProblem, arrays, n_used: int, seed: int = 0,
     normal[2] = 1.0  # padded directions at the normal: finite for every model
     # on the device at once: the host copies are freed when this returns (no second copy of
     # the data beside the one the solver reads)
-    prep = tuple(jnp.asarray(arrange(a, fill)) for a, fill in
+    prep = tuple(_put(arrange(a, fill)) for a, fill in
                  ((wi, normal), (wo, normal), (mul, 0.0), (gf, 0.0), (scale, 0.0)))
     return ChunkedData(prep=prep, coarse_chunks=coarse, n_chunks=n_chunks, n_used=n_used)
 
@@ -122,7 +132,7 @@ def _sums(problem, dq, u, prep, lo, hi, fx, sandwich):
 
     def body(i, acc):
         a = jax.tree.map(lambda x: jax.lax.dynamic_index_in_dim(x, i, 0, keepdims=False), prep)
-        return jax.tree.map(jnp.add, acc, _lm.quad(problem, dq, u, a, fx, sandwich))
+        return jax.tree.map(jnp.add, acc, _lm.quad_pairs(problem, dq, u, a, fx, sandwich))
 
     return jax.lax.fori_loop(lo, hi, body, zero)
 
@@ -225,7 +235,7 @@ def _run_stage(progs, state, prep, rows, fx, budget, deadline, progress, stage):
     (:func:`brdf_fit.fitting._lm.newton_converged`): the full stage after a coarse one on
     noise-free data costs one pass over the data."""
     if bool(progs.converged(state)):
-        return dataclasses.replace(state, done=jnp.bool_(True), ok=jnp.bool_(True)), 0, ""
+        return dataclasses.replace(state, done=_put(np.True_), ok=_put(np.True_)), 0, ""
     steps = 0
     while steps < budget:
         if bool(state.done):
@@ -258,25 +268,26 @@ def solve_chunked(problem: FitProblem, u0, data: ChunkedData, n_channels: int,
     prep = data.prep
     # device arrays from the start (NumPy scalars would give the first step's programs another
     # signature than the later steps', so two programs each)
-    start = jax.tree.map(lambda x: jnp.asarray(x[0]), _lm.LMState.start(
+    start = jax.tree.map(lambda x: _put(x[0]), _lm.LMState.start(
         np.asarray(u0)[None], dtype, max_steps, rtol, atol))
 
     def begin(u, rows, steps_so_far, lam):
         """A fresh state at ``u`` with its sums on the chunks ``rows`` and damping ``lam``."""
-        cost, A, g, meat = progs.sums(jnp.asarray(u, dtype), prep, *rows, fx)
-        return dataclasses.replace(start, u=jnp.asarray(u, dtype), lam=lam,
-                                   steps=jnp.int32(steps_so_far), cost=cost, A=A, g=g, meat=meat)
+        u = _put(u, dtype)
+        cost, A, g, meat = progs.sums(u, prep, *rows, fx)
+        return dataclasses.replace(start, u=u, lam=lam, steps=_put(np.int32(steps_so_far)),
+                                   cost=cost, A=A, g=g, meat=meat)
 
     coarse_steps, why = 0, ""
     u, lam = np.asarray(u0), start.lam  # the initial damping
     c = data.coarse_chunks
     if c:
-        rows = (jnp.int32(0), jnp.int32(c))
+        rows = (_put(np.int32(0)), _put(np.int32(c)))
         state, coarse_steps, why = _run_stage(
             progs, begin(u, rows, 0, lam), prep, rows, fx, min(COARSE_MAX_STEPS, max_steps),
             deadline, progress, "coarse")
         u, lam = np.asarray(state.u), state.lam  # the full stage goes on with the subset's
-    rows = (jnp.int32(c), jnp.int32(c + data.n_chunks))
+    rows = (_put(np.int32(c)), _put(np.int32(c + data.n_chunks)))
     state, steps = begin(u, rows, coarse_steps, lam), 0
     if why != "time_limit":
         state, steps, why = _run_stage(progs, state, prep, rows, fx, max_steps - coarse_steps,
@@ -323,9 +334,8 @@ def finish_chunked(problem: FitProblem, sol: ChunkedSolution, n_channels: int, m
     progs = _programs(problem, n_channels, sandwich)
     dtype = sol.u.dtype
     phys, se, cost, rms, code, cov = progs.finish(
-        jnp.asarray(sol.u), jnp.asarray(sol.cost, dtype), jnp.asarray(sol.A),
-        jnp.asarray(sol.meat), jnp.asarray(m_eff, dtype), jnp.asarray(max(n_res, 1), dtype),
-        problem.fixed)
+        _put(sol.u), _put(sol.cost, dtype), _put(sol.A), _put(sol.meat), _put(m_eff, dtype),
+        _put(max(n_res, 1), dtype), problem.fixed)
     return ({k: np.asarray(v) for k, v in phys.items()}, np.asarray(se), float(cost),
             float(rms) if math.isfinite(float(rms)) else float("nan"), np.asarray(code),
             np.asarray(cov))
