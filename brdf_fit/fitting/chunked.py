@@ -286,7 +286,12 @@ def solve_chunked(problem: FitProblem, u0, data: ChunkedData, n_channels: int,
         state, coarse_steps, why = _run_stage(
             progs, begin(u, rows, 0, lam), prep, rows, fx, min(COARSE_MAX_STEPS, max_steps),
             deadline, progress, "coarse")
-        u, lam = np.asarray(state.u), state.lam  # the full stage goes on with the subset's
+        # the full stage goes on with the subset's damping, but never more damped than a fresh
+        # start (LM_TAU, relative to diag(J^T J) as lam is): a subset solved to rounding ends
+        # with a run of rejected steps that each multiply lam (to 1e21 on a MERL plastic fitted
+        # with GGX), which says nothing about the whole data and there damped every step to
+        # nothing, so the full stage stopped at once, not converged (issue 44)
+        u, lam = np.asarray(state.u), jnp.minimum(state.lam, _lm.LM_TAU)
     rows = (_put(np.int32(c)), _put(np.int32(c + data.n_chunks)))
     state, steps = begin(u, rows, coarse_steps, lam), 0
     if why != "time_limit":

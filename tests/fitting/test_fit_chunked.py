@@ -116,6 +116,29 @@ def test_pairwise_sums_equal_stacked(model, sandwich):
                                    atol=1e-12 * float(np.max(np.abs(np.asarray(w))) + 1e-300))
 
 
+def test_full_stage_starts_no_more_damped_than_a_fresh_start(small_chunks, monkeypatch):
+    """However damped the subset's stage ends (a subset solved to rounding ends with rejected
+    steps that each multiply lam: 1e21 on a MERL plastic fitted with GGX), the whole data's
+    stage starts from at most the initial damping: it converges, as from the subset's
+    optimum it should, instead of rejecting every step."""
+    import dataclasses
+
+    run = chunked._run_stage
+
+    def spent(progs, state, prep, rows, fx, budget, deadline, progress, stage):
+        state, steps, why = run(progs, state, prep, rows, fx, budget, deadline, progress, stage)
+        if stage == "coarse":
+            state = dataclasses.replace(state, lam=jnp.asarray(1e21, state.lam.dtype))
+        return state, steps, why
+
+    monkeypatch.setattr(chunked, "_run_stage", spent)
+    steps = []
+    r = fit(_data(0.02, False), "ggx", init=START, progress=lambda *a: steps.append(a[0]))
+    assert r.converged, r.message
+    assert 0 < steps.count("full") <= 5
+    np.testing.assert_allclose(r.params["alpha"], TRUTH["alpha"], rtol=0.05)
+
+
 def test_limits_are_reported(small_chunks):
     """A time limit passed and a step budget spent end not converged, each saying why."""
     d = _data(0.02, False)
