@@ -5,7 +5,13 @@ Shared jitted helpers live in ``tests/_helpers.py`` so every test module reuses 
 
 import os
 
-import jax
+from brdf_fit import _xla
+
+# the XLA options the command line runs with, so that the tests compile and run as it does (and
+# in the measured time): only before JAX starts, so before it is imported here
+_xla.configure()
+
+import jax  # noqa: E402
 
 # CLI runs in subprocesses keep no compiled programs in the user's cache folder
 os.environ.setdefault("BRDF_FIT_NO_CACHE", "1")

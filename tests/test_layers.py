@@ -26,6 +26,7 @@ PACKAGES = ("brdf_fit", "data_synth")
 #: its own layer or a lower one.
 LAYERS = {
     "brdf_fit._version": 0,
+    "brdf_fit._xla": 0,
     "brdf_fit.core": 0,
     "brdf_fit.data": 0,
     "brdf_fit.models": 1,

@@ -10,6 +10,7 @@ import pathlib
 import sys
 from typing import NoReturn
 
+from brdf_fit import _xla
 from brdf_fit._version import __version__
 from brdf_fit.cli import (
     catalogue,
@@ -187,6 +188,7 @@ def main(argv: list[str] | None = None) -> int:
     args._argv = None if argv is None else list(argv)
     if args.max_memory is not None:  # read by brdf_fit.core.limits; children inherit it
         os.environ["BRDF_FIT_MAX_MEMORY"] = str(args.max_memory)
+    _xla.configure()  # before JAX starts: the XLA options the toolkit runs with (brdf_fit._xla)
     _enable_compilation_cache(not args.no_cache)
     shown = warnings.showwarning
     warnings.showwarning = _show_warning
