@@ -7,7 +7,9 @@ maps, figures.
 
 The temporary file's name is unique to the write (``tempfile.mkstemp``: ``.NAME.XXXXXXXX.tmp``
 plus the target's suffix, so writers that choose the format by extension, as matplotlib and
-OpenEXR do, see the right one); two runs never touch each other's temporaries. It gets the
+OpenEXR do, see the right one); two runs never touch each other's temporaries. A stop
+(SIGINT, SIGTERM) that arrives while the temporary is being created is held back until its name
+is known to the cleanup, so a stopped command leaves none either. It gets the
 permissions ``open()`` would give a new file (0666 less the umask; ``mkstemp`` makes 0600)."""
 
 from __future__ import annotations
@@ -17,6 +19,9 @@ import os
 import tempfile
 
 __all__ = ["atomic_path", "write_bytes_atomic", "write_text_atomic", "TEMP_MARK"]
+
+#: how a temporary file is created (``os.open``; a name the tests replace to stop a write there)
+_open = os.open
 
 #: what every temporary file's name contains (after the target's name): a folder's leftovers
 #: of a killed run are ``.NAME.*.tmp*``
@@ -39,10 +44,14 @@ def atomic_path(path):
     target = os.fspath(path)
     folder = os.path.dirname(os.path.abspath(target))
     name = os.path.basename(target)
-    fd, tmp = tempfile.mkstemp(prefix=f".{name}.", suffix=TEMP_MARK + os.path.splitext(name)[1],
-                               dir=folder)
-    os.close(fd)
+    tmp = None
     try:
+        # the temporary's name is known to the cleanup below from the moment the file exists:
+        # a stop (KeyboardInterrupt, the CLI's Terminated) can land at any call, and one that
+        # landed inside tempfile.mkstemp after it had created the file, before its name came
+        # back, left the file behind (a fit-batch run stopped by SIGINT, once in the slow set)
+        with _stops_held():
+            tmp = _create_temporary(folder, name)
         yield tmp
         os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, target)
@@ -52,8 +61,45 @@ def atomic_path(path):
         # the error names the file the caller asked for, not its temporary stand-in
         raise OSError(e.errno, e.strerror, target) from e
     finally:
-        if os.path.lexists(tmp):
+        if tmp is not None and os.path.lexists(tmp):
             os.unlink(tmp)
+
+
+@contextlib.contextmanager
+def _stops_held():
+    """SIGINT and SIGTERM held back (``pthread_sigmask``) while the body runs and delivered when
+    it ends: a stop that arrives meanwhile is raised after it, by when the caller has stored
+    what it must clean up. A stop already caught before the mask took effect is raised at the
+    mask call's return, before the body starts. Where there is no ``pthread_sigmask``
+    (Windows), nothing is held."""
+    import signal
+
+    held = {signal.SIGINT, signal.SIGTERM}
+    try:
+        old = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    except (AttributeError, ValueError, OSError):
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+def _create_temporary(folder: str, name: str) -> str:
+    """A new empty file ``.NAME.XXXXXXXX.tmp<suffix>`` in ``folder`` (``O_EXCL``: never another
+    writer's), its path."""
+    suffix = TEMP_MARK + os.path.splitext(name)[1]
+    names = tempfile._get_candidate_names()
+    for _ in range(tempfile.TMP_MAX):
+        candidate = os.path.join(folder, f".{name}.{next(names)}{suffix}")
+        try:
+            fd = _open(candidate, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o600)
+        except FileExistsError:
+            continue
+        os.close(fd)
+        return candidate
+    raise FileExistsError(f"no unused temporary name for {name} in {folder}")
 
 
 def write_bytes_atomic(path, data: bytes) -> None:
