@@ -5,23 +5,26 @@ temporary behind. Every file the package writes goes through here: the command l
 outputs, the fit's exports, glTF files, lookup tables, database parts, fit-batch's blocks and
 maps, figures.
 
-The temporary file's name is unique to the write (``tempfile.mkstemp``: ``.NAME.XXXXXXXX.tmp``
+The temporary file's name is unique to the write (created with ``O_EXCL``: ``.NAME.XXXXXXXX.tmp``
 plus the target's suffix, so writers that choose the format by extension, as matplotlib and
 OpenEXR do, see the right one); two runs never touch each other's temporaries. A stop
 (SIGINT, SIGTERM) that arrives while the temporary is being created is held back until its name
 is known to the cleanup, so a stopped command leaves none either. It gets the
-permissions ``open()`` would give a new file (0666 less the umask; ``mkstemp`` makes 0600)."""
+permissions ``open()`` would give a new file (0666 less the umask; it is created 0600)."""
 
 from __future__ import annotations
 
 import contextlib
 import os
-import tempfile
+import secrets
 
 __all__ = ["atomic_path", "write_bytes_atomic", "write_text_atomic", "TEMP_MARK"]
 
 #: how a temporary file is created (``os.open``; a name the tests replace to stop a write there)
 _open = os.open
+
+#: names tried for a temporary file before giving up (each is 8 random hex digits)
+TEMP_TRIES = 100
 
 #: what every temporary file's name contains (after the target's name): a folder's leftovers
 #: of a killed run are ``.NAME.*.tmp*``
@@ -90,9 +93,8 @@ def _create_temporary(folder: str, name: str) -> str:
     """A new empty file ``.NAME.XXXXXXXX.tmp<suffix>`` in ``folder`` (``O_EXCL``: never another
     writer's), its path."""
     suffix = TEMP_MARK + os.path.splitext(name)[1]
-    names = tempfile._get_candidate_names()
-    for _ in range(tempfile.TMP_MAX):
-        candidate = os.path.join(folder, f".{name}.{next(names)}{suffix}")
+    for _ in range(TEMP_TRIES):
+        candidate = os.path.join(folder, f".{name}.{secrets.token_hex(4)}{suffix}")
         try:
             fd = _open(candidate, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o600)
         except FileExistsError:

@@ -72,10 +72,12 @@ for batches: Marquardt scaling by the running maximum of ``diag(J^T J)`` (as MIN
 damping update of H. B. Nielsen ("Damping parameter in Marquardt's method", IMM-REP-1999-05,
 DTU, 1999: ``lam *= max(1/3, 1 - (2 rho - 1)^3)`` on success, ``lam *= nu; nu *= 2`` on failure),
 the residual and Jacobian from one forward-mode pass, the normal equations (``p x p``)
-solved by Cholesky, and no step longer than ``STEP_MAX`` = 2 in the unconstrained space
+solved by Cholesky, and no step entry longer than ``STEP_MAX`` = 2 in the unconstrained space
 (without that cap a first step from the registry default drove a logistic parameter far past
 its bound, onto a plateau of zero gradient: 7-18% of 300 problems ended worse than scipy's
-``least_squares``, measured; with it none, and the mean step count fell from ~26 to ~11). Its
+``least_squares``, measured; with it none, and the mean step count fell from ~26 to ~11; those
+figures are of the cap on the step's length, which is per entry since 2026-12-07, see
+:func:`brdf_fit.fitting._lm.lm_propose`). Its
 whole state (``u``, ``lam``, ``nu``, the scaling) is carried across chunks, so chunking and
 compaction do not change a single iterate. It stops when an accepted step satisfies
 optimistix's Cauchy test, ``max|du / (atol + rtol |u|)| < 1`` and
