@@ -33,6 +33,7 @@ from brdf_fit.fitting.solvers import covariance_normal, hc3_weights, pinv_or_sta
 
 __all__ = ["LMState", "gather", "data_axes", "lanes", "directions", "tangents", "normal",
            "quad", "quad_pairs", "tangent_list", "lm_init", "lm_step", "lm_propose", "lm_update",
+           "gauss_newton_step",
            "newton_converged", "lm_chunk", "optx_chunk",
            "finalise_one", "finalise_state", "grouped"]
 
@@ -376,11 +377,17 @@ def lm_propose(s: LMState):
     return du, s.u + du, lam, scale
 
 
+def gauss_newton_step(A, g):
+    """The undamped Gauss-Newton step ``-A^-1 g`` (Cholesky; NaN where ``A`` is not positive
+    definite)."""
+    return -jax.scipy.linalg.cho_solve((jnp.linalg.cholesky(A), True), g)
+
+
 def newton_converged(u, cost, A, g, rtol, atol):
     """True where the undamped Gauss-Newton step ``-A^-1 g`` from ``u`` would pass the Cauchy
     test by its quadratic model: ``max|dn / (atol + rtol |u|)| < 1`` and the Gauss-Newton
     decrement ``0.5 g^T A^-1 g < atol + rtol * cost`` (:func:`lm_update`'s second test)."""
-    dn = -jax.scipy.linalg.cho_solve((jnp.linalg.cholesky(A), True), g)
+    dn = gauss_newton_step(A, g)
     return (jnp.all(jnp.isfinite(dn))
             & (jnp.max(jnp.abs(dn) / (atol + rtol * jnp.abs(u))) < 1.0)
             & (-0.5 * jnp.dot(g, dn) < atol + rtol * cost))
@@ -417,7 +424,7 @@ def lm_update(s: LMState, du, u_new, lam, scale, q_new) -> LMState:
     # exact where the loss's differences are not, so the lane takes dn without a loss test and
     # stops; its loss and normal equations stay those of u (the loss at u + dn differs by less
     # than its rounding). Without that step the lane stopped up to 1e-8 from the optimum
-    dn = -jax.scipy.linalg.cho_solve((jnp.linalg.cholesky(A), True), g)
+    dn = gauss_newton_step(A, g)
     floor = ~accept & jnp.all(jnp.isfinite(dn)) & (
         -0.5 * jnp.dot(g, dn) <= ROUNDING_FLOOR * jnp.finfo(dtype).eps * cost)
     stuck = (~accept & (lam * s.nu > LAM_MAX * jnp.max(d))) | floor

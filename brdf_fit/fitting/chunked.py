@@ -290,8 +290,9 @@ def solve_chunked(problem: FitProblem, u0, data: ChunkedData, n_channels: int,
         # start (LM_TAU, relative to diag(J^T J) as lam is): a subset solved to rounding ends
         # with a run of rejected steps that each multiply lam (to 1e21 on a MERL plastic fitted
         # with GGX), which says nothing about the whole data and there damped every step to
-        # nothing, so the full stage stopped at once, not converged (issue 44)
-        u, lam = np.asarray(state.u), jnp.minimum(state.lam, _lm.LM_TAU)
+        # nothing, so the full stage stopped at once, not converged (issue 44). On the host:
+        # jnp.minimum would compile (and a fresh process load) one more program
+        u, lam = np.asarray(state.u), _put(np.minimum(np.asarray(state.lam), _lm.LM_TAU))
     rows = (_put(np.int32(c)), _put(np.int32(c + data.n_chunks)))
     state, steps = begin(u, rows, coarse_steps, lam), 0
     if why != "time_limit":
