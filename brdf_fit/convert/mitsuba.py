@@ -107,6 +107,9 @@ __all__ = [
 
 #: the optional extra that installs Mitsuba (``pip install brdf_fit[mitsuba]``)
 MITSUBA_EXTRA = "mitsuba"
+#: the smallest f0 a roughplastic is written with: Mitsuba refuses int_ior = ext_ior, which a
+#: fitted f0 at its bound 0 gives (a coat that reflects nothing); 1e-8 is int_ior 1.0002
+ROUGHPLASTIC_F0_MIN = 1e-8
 #: the Mitsuba variant the round trip uses
 VARIANT = "scalar_rgb"
 #: the round trip evaluates Mitsuba one direction pair at a time (scalar variant): the default
@@ -360,7 +363,8 @@ def _candidate(kind: str, model: str, p: dict, geometry=None) -> dict:
     if kind == "roughplastic":
         return {"type": "roughplastic", "distribution": "ggx", "alpha": float(p["alpha"]),
                 "diffuse_reflectance": _rgb(p["rho_d"]),
-                "int_ior": float(ior_from_f0(min(float(np.max(p["f0"])), 0.999))),
+                "int_ior": float(ior_from_f0(min(max(float(np.max(p["f0"])), ROUGHPLASTIC_F0_MIN),
+                                                 0.999))),
                 "ext_ior": 1.0}
     raise AssertionError(kind)
 

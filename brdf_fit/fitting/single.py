@@ -61,6 +61,7 @@ import numpy as np
 
 from brdf_fit.core.validate import ParameterError, PrecisionWarning
 from brdf_fit.data import GonioData
+from brdf_fit.fitting import bounds as _bounds
 from brdf_fit.fitting import chunked as _chunked
 from brdf_fit.fitting import guess as _guess
 from brdf_fit.fitting._export import ExportedCall, export_key
@@ -362,8 +363,9 @@ def _dense_stderr(jitted, u, arrays, fx, real: int, m_eff: int, sandwich: bool, 
     params = {k: np.asarray(v) for k, v in phys.items()}
     rms = float(np.sqrt(np.mean(r**2))) if r.size else 0.0
     if not p:
-        return params, np.zeros(0), rms, np.zeros(0, int), True, None
+        return params, np.zeros(0), rms, np.zeros(0, int), True, None, None
     J = np.asarray(J)[:real]
+    grad = (np.asarray(flat_phys), J, r)
     finite = bool(np.all(np.isfinite(J)) and np.all(np.isfinite(r)))
     # J^T J of finite J may still overflow: stderr_codes tests the product itself
     with np.errstate(over="ignore"):
@@ -374,7 +376,7 @@ def _dense_stderr(jitted, u, arrays, fx, real: int, m_eff: int, sandwich: bool, 
         se = np.sqrt(np.maximum(np.diag(cov), 0.0)) if finite else np.full(p, np.nan)
     except np.linalg.LinAlgError:
         cov, se = None, np.full(p, np.nan)
-    return params, se, rms, codes, finite, cov
+    return params, se, rms, codes, finite, cov, grad
 
 
 def fit(
@@ -510,8 +512,23 @@ def fit(
             if best is None or loss < best[1]:
                 best = (sol, loss)
         (u, ok, steps), loss = best
-        params, se, rms, codes, finite, cov = _dense_stderr(jitted, u, arrays, fx, n_used * C,
-                                                            m_eff, sandwich, p)
+        params, se, rms, codes, finite, cov, grad = _dense_stderr(
+            jitted, u, arrays, fx, n_used * C, m_eff, sandwich, p)
+        if not bool(ok) and grad is not None and layout.at_bound(params).any():
+            # an optimum on a bound (brdf_fit.fitting.bounds): the entries there are put far
+            # onto their transform's plateau (Jacobian column ~0, so the solver's step in them
+            # ~0) and the same compiled solver goes on from there; converged only where no
+            # bound entry would lower the loss by moving inward
+            u2 = _bounds.onto_plateau(layout, np.asarray(u), grad[0])
+            *sol2, loss2 = jitted.run(jnp.asarray(u2, dtype), arrays, fx)
+            if float(loss2) <= loss:
+                (u, ok, steps2), loss = sol2, float(loss2)
+                steps = int(steps) + int(steps2)
+                params, se, rms, codes, finite, cov, grad = _dense_stderr(
+                    jitted, u, arrays, fx, n_used * C, m_eff, sandwich, p)
+            ok = bool(ok) and _bounds.inward_gradient_free(layout, *grad)
+            if not ok:
+                ok = _bounds.converged_at_bounds(layout, *grad, rtol, atol)
     stderr, bound_names = {}, ()
     if p:
         bound = layout.at_bound(params)
