@@ -38,6 +38,7 @@ from brdf_fit.models import (
     TurquinCompensated,
     ashikhmin_shirley,
     beard_maxwell,
+    blender_principled,
     cook_torrance_1982,
     disney,
     gltf_pbr,
@@ -461,8 +462,9 @@ for _module in FAMILY_MODULES:
 
 #: renderer-native entries (``Entry.target``, tag ``"native"``): transcriptions of what a
 #: renderer or format itself computes, so that a fit in one exports to it with no loss
-NATIVE_MODULES = (mitsuba, mitsuba_principled, gltf_pbr)
+NATIVE_MODULES = (mitsuba, mitsuba_principled, gltf_pbr, blender_principled)
 
 for _entry in (*mitsuba.registry_entries(_gold_eta, _gold_k),
-               *mitsuba_principled.registry_entries(), *gltf_pbr.registry_entries()):
+               *mitsuba_principled.registry_entries(), *gltf_pbr.registry_entries(),
+               *blender_principled.registry_entries()):
     register(_entry)

@@ -59,6 +59,9 @@ NESTED: dict[str, tuple[str, dict]] = {
         "flatness": 0.0}),
     "mitsuba-roughconductor-aniso": ("mitsuba-roughconductor", _ISO_UV),
     "mitsuba-roughconductor-beckmann-aniso": ("mitsuba-roughconductor-beckmann", _ISO_UV),
+    "blender-principled-aniso": ("blender-principled", {"anisotropic": 0.0}),
+    "blender-principled-coat": ("blender-principled", {"coat_weight": 0.0, "coat_roughness": 0.03,
+                                                       "coat_ior": 1.5}),
     "ggx-aniso": ("ggx", _ISO),
     "ggx-conductor-aniso": ("ggx-conductor", _ISO),
 }

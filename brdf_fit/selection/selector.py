@@ -63,8 +63,8 @@ second roughness width (a statistic with its threshold, in the result); when it 
 the candidates are the defaults (of the target, or of the package), the anisotropic candidates
 of :data:`ANISOTROPIC_CANDIDATES` join them.
 
-**Targets.** ``target="mitsuba"`` or ``"gltf"`` fits in the target's own models (registry
-entries whose ``target`` is it, plus the entries that export to it exactly:
+**Targets.** ``target="mitsuba"``, ``"gltf"`` or ``"blender"`` fits in the target's own models
+(registry entries whose ``target`` is it, plus the entries that export to it exactly:
 :data:`EXACT_EXPORTS`), so that the chosen fit is written to the renderer as it was fitted.
 """
 
@@ -136,7 +136,7 @@ FAMILIES = {
 
 
 #: renderers and formats a selection can target
-TARGETS = ("mitsuba", "gltf")
+TARGETS = ("mitsuba", "gltf", "blender")
 #: the default candidates of a target: its native entries, cheap to costly (anisotropic ones
 #: join when the data show anisotropy: :data:`ANISOTROPIC_CANDIDATES`)
 TARGET_CANDIDATES = {
@@ -145,6 +145,7 @@ TARGET_CANDIDATES = {
                 "mitsuba-principled"),
     "gltf": ("lambert", "gltf-pbr", "gltf-pbr-specular", "gltf-pbr-clearcoat",
              "gltf-pbr-sheen"),
+    "blender": ("blender-principled", "blender-principled-coat"),
 }
 #: the candidates added when :func:`~brdf_fit.selection.anisotropy.detect_anisotropy` finds
 #: anisotropy (key None: no target)
@@ -153,6 +154,7 @@ ANISOTROPIC_CANDIDATES = {
     "mitsuba": ("mitsuba-roughconductor-aniso", "mitsuba-roughconductor-beckmann-aniso",
                 "mitsuba-principled-aniso"),
     "gltf": ("gltf-pbr-anisotropy",),
+    "blender": ("blender-principled-aniso",),
 }
 #: entries of the literature a target holds exactly (besides the target's native entries):
 #: Lambert is Mitsuba's ``diffuse`` and glTF's dielectric with ``specularFactor`` 0; glTF's
@@ -160,6 +162,7 @@ ANISOTROPIC_CANDIDATES = {
 EXACT_EXPORTS = {
     "mitsuba": ("lambert", "ggx-separable"),
     "gltf": ("lambert", "ggx"),
+    "blender": (),
 }
 #: the absolute error above the noise level beyond which no candidate represents a material
 CEILING_ABOVE_NOISE = 0.05
@@ -454,7 +457,8 @@ def select(data: GonioData, candidates: Sequence[str] | None = None, budget: flo
     :func:`target_candidates`) to ``data`` in the radiance error, measure its cost, and choose
     the cheapest within ``budget`` and the ceiling (module docstring). ``family``: a named set
     of candidates instead (:data:`FAMILIES`, or ``"all"``; not together with ``candidates``).
-    ``target``: ``"mitsuba"`` or ``"gltf"``: only models written to it with no loss.
+    ``target``: ``"mitsuba"``, ``"gltf"`` or ``"blender"``: only models written to it with no
+    loss.
     ``checks``: registry checks run on each fitted model (their status per check; ``()`` skips
     them). ``costs``: a dict of live costs (ns per evaluation) by model name, shared between
     calls: a model found there is not measured again, a model measured here is added (a scene

@@ -108,7 +108,7 @@ def test_a_target_takes_only_what_it_holds_as_fitted(gold):
     with pytest.raises(ValueError, match="cannot be written to mitsuba as fitted"):
         sl.select(gold, ["ggx", "mitsuba-roughconductor"], target="mitsuba", anisotropy=False)
     with pytest.raises(ValueError, match="unknown target"):
-        sl.select(gold, ["ggx"], target="blender", anisotropy=False)
+        sl.select(gold, ["ggx"], target="renderman", anisotropy=False)
     for t in sl.TARGETS:
         for n in sl.target_candidates(t):
             assert sl.exports_exactly(n, t), (t, n)

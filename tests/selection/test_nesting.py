@@ -30,6 +30,8 @@ BASE_VALUES = {
     "mitsuba-roughconductor-beckmann": {"alpha": 0.23},
     "ggx": {"alpha": 0.23, "f0": np.array([0.9, 0.6, 0.3])},
     "ggx-conductor": {"alpha": 0.23},
+    "blender-principled": {"base_color": np.array([0.7, 0.2, 0.1]), "roughness": 0.45,
+                           "metallic": 0.3, "ior": 1.6},
 }
 
 
