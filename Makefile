@@ -5,7 +5,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: setup demo test test-slow test-all lint bench docs clean
+.PHONY: setup demo test test-slow test-all lint bench docs blender clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -14,6 +14,20 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 setup: $(STAMP)
+
+# Blender's Python module (bpy 4.5 LTS) for the Cycles parity tests and .blend exports: it needs
+# Python 3.11 exactly and NumPy < 2, so it lives in an environment of its own (.venv-blender),
+# which brdf_fit.convert.blender finds; without it those tests skip with one line
+BLENDER_PYTHON ?= python3.11
+BLENDER_VENV   := .venv-blender
+BLENDER_STAMP  := $(BLENDER_VENV)/.installed
+
+$(BLENDER_STAMP):
+	$(BLENDER_PYTHON) -m venv $(BLENDER_VENV)
+	$(BLENDER_VENV)/bin/python -m pip install --quiet 'bpy==4.5.*'
+	touch $(BLENDER_STAMP)
+
+blender: $(BLENDER_STAMP)   ## Blender 4.5's Python module in ./.venv-blender (Cycles parity tests)
 
 demo: $(STAMP)          ## the main job on its embedded default
 	$(BIN)/brdf-fit demo

@@ -1,4 +1,4 @@
-"""Writing a fitted model for a renderer (``fit --export``, ``select --mitsuba/--gltf``):
+"""Writing a fitted model for a renderer (``fit --export``, ``select --mitsuba/--gltf/--blender``):
 the target's own models, the export kind from the file's extension, the write itself."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from brdf_fit.cli._common import (
 )
 
 #: export targets by output extension
-EXPORT_EXT = {".xml": "mitsuba", ".gltf": "gltf"}
+EXPORT_EXT = {".xml": "mitsuba", ".gltf": "gltf", ".py": "blender", ".blend": "blender"}
 
 
 def target_entry(reg, model: str, target: str | None):
@@ -49,7 +49,8 @@ def export_kind(path: str | None, target: str | None) -> str | None:
     ext = os.path.splitext(path)[1].lower()
     kind = EXPORT_EXT.get(ext)
     if kind is None:
-        raise CLIError(f"--export: {path!r} must end in .xml (Mitsuba 3) or .gltf (glTF 2.0)")
+        raise CLIError(f"--export: {path!r} must end in .xml (Mitsuba 3), .gltf (glTF 2.0), .py "
+                       "(a Blender script) or .blend (a Blender file)")
     if target is not None and kind != target:
         raise CLIError(f"--export {path}: a {ext} file is a {kind} export, but --target is "
                        f"{target}")
@@ -58,8 +59,9 @@ def export_kind(path: str | None, target: str | None) -> str | None:
 
 
 def write_export(kind: str, path: str, model: str, params: dict, data, name: str) -> dict:
-    """Write ``model`` at ``params`` to ``path`` (Mitsuba XML or glTF), its round trip
-    measured on the data's own geometry; returns what was written."""
+    """Write ``model`` at ``params`` to ``path`` (Mitsuba XML or glTF, their round trip
+    measured on the data's own geometry; a Blender script or .blend, the node's own inputs);
+    returns what was written."""
     p = {k: np.asarray(v, np.float64) for k, v in params.items()}
     geometry = (data.wi, data.wo)
     if kind == "mitsuba":
@@ -74,6 +76,14 @@ def write_export(kind: str, path: str, model: str, params: dict, data, name: str
         from brdf_fit.core.atomic import write_text_atomic
 
         write_text_atomic(path, text)
+    elif kind == "blender":
+        from brdf_fit.convert import blender as cb
+
+        try:
+            e = cb.to_blender(model, p, name)
+            cb.write_blender(path, [e], what=f"brdf_fit fit: {model} fitted to {name}")
+        except (cb.ExportError, cb.BlenderNotFound, RuntimeError, ValueError) as exc:
+            raise CLIError(str(exc)) from None  # the caller's flag goes before it
     else:
         from brdf_fit.convert import gltf as cg
 

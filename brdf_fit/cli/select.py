@@ -47,6 +47,8 @@ def run(args) -> int:
         check_output_file(args.gltf, (".gltf",), "--gltf")
     if args.mitsuba is not None:
         check_output_file(args.mitsuba, (".xml",), "--mitsuba")
+    if args.blender is not None:
+        check_output_file(args.blender, (".py", ".blend"), "--blender")
     reg = load_registry()
     names = None
     if args.candidates is not None and args.family is not None:
@@ -91,10 +93,14 @@ def run(args) -> int:
     chosen = sel.choice
     if chosen is not None:
         name = os.path.splitext(os.path.basename(args.data))[0]
-        for kind, path in (("mitsuba", args.mitsuba), ("gltf", args.gltf)):
+        for kind, path in (("mitsuba", args.mitsuba), ("gltf", args.gltf),
+                           ("blender", args.blender)):
             if path is not None:
+                # a Blender export that cannot be made (a .blend without Blender's Python, a
+                # choice that is no Blender entry) is reported after the selection
                 outs.write(f"--{kind}", path, lambda kind=kind, path=path: exports.append(
-                    write_export(kind, path, chosen, sel.candidate(chosen).params, data, name)))
+                    write_export(kind, path, chosen, sel.candidate(chosen).params, data, name)),
+                    also=(CLIError,) if kind == "blender" else ())
     doc["exports"] = exports
     status = 0 if sel.choice is not None and sel.represented else 1
     if args.json:
@@ -205,6 +211,12 @@ def _select_scene(args, names, checks) -> int:
     if args.mitsuba is not None:
         outs.write("--mitsuba", args.mitsuba,
                    lambda: sc.export_scene(res, mitsuba_path=args.mitsuba))
+    if args.blender is not None:
+        from brdf_fit.convert.blender import BlenderNotFound
+
+        outs.write("--blender", args.blender,
+                   lambda: sc.export_scene(res, blender_path=args.blender),
+                   also=(BlenderNotFound, RuntimeError, ValueError))
     doc = res.to_dict()
     if args.plot is not None:
         from brdf_fit.plot import scene_front
@@ -269,6 +281,11 @@ def add_parser(sub) -> None:
                     help="write the chosen material(s) as glTF 2.0 materials")
     se.add_argument("--mitsuba", default=None, metavar="OUT.xml",
                     help="write the chosen material(s) as Mitsuba 3 bsdfs")
+    se.add_argument("--blender", default=None, metavar="OUT.py|OUT.blend",
+                    help="write the chosen material(s) for Blender: a script making Principled "
+                         "BSDF materials (run it in Blender), or a .blend (needs Blender's "
+                         "Python: make blender); the choice must be a blender entry "
+                         "(--target blender)")
     se.add_argument("--skip-bad", action="store_true",
                     help="with --scene: list bad materials and select the others")
     se.add_argument("--candidates", default=None, metavar="A,B,...",
@@ -283,8 +300,8 @@ def add_parser(sub) -> None:
                          "best candidate's error, at least 1.5x the noise level with sigma, "
                          "at least 0.01)")
     se.add_argument("--target", default=None, metavar="T",
-                    help="mitsuba or gltf: select among the models the target holds as fitted "
-                         "(its native entries), so the export is the fit itself")
+                    help="mitsuba, gltf or blender: select among the models the target holds as "
+                         "fitted (its native entries), so the export is the fit itself")
     se.add_argument("--ceiling", type=float, default=None, metavar="E",
                     help="error above which no candidate represents the material (default: "
                          "0.05 above the noise level; inf turns it off); then the exit "
