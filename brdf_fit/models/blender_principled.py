@@ -589,13 +589,13 @@ def registry_entries():
               description=("Blender 4.5 Principled BSDF as Cycles renders it: Lambert under a "
                            "dielectric GGX layer, F82 metal, Multiscatter GGX; the node's inputs"),
               aliases=("principled-blender", "cycles-principled"),
-              tags=("native", "blender"), **common),
+              tags=("native", "blender", "layered"), **common),
         Entry(name="blender-principled-aniso", builder=_builder,
               params=tuple(_param(n) for n in _ANISO),
               description="blender-principled with Cycles' anisotropic GGX widths",
-              tags=("native", "blender", "anisotropic"), **common),
+              tags=("native", "blender", "anisotropic", "layered"), **common),
         Entry(name="blender-principled-coat", builder=_builder,
               params=tuple(_param(n) for n in _COAT),
               description="blender-principled under Cycles' dielectric GGX coat",
-              tags=("native", "blender"), **common),
+              tags=("native", "blender", "layered"), **common),
     ]
