@@ -105,12 +105,16 @@ from brdf_fit.models._base import AbstractBRDF, QuadratureLobe, expand_channels
 from brdf_fit.models._lobes import finish_sample, half_geometry, sanitize
 
 __all__ = ["BLENDER_DEFAULTS", "CLOSURE_WEIGHT_CUTOFF", "CYCLES_TABLE_FILE", "INPUT_NAMES",
-           "ROUGHNESS_SQ_THRESH", "BlenderPrincipled", "registry_entries", "to_blender_inputs"]
+           "ROUGHNESS_SQ_THRESH", "SAMPLER_ALPHA_FLOOR", "BlenderPrincipled", "registry_entries",
+           "to_blender_inputs"]
 
 #: ``CLOSURE_WEIGHT_CUTOFF`` (kernel/svm/types.h): a coat or metallic weight at or below is skipped
 CLOSURE_WEIGHT_CUTOFF = 1e-5
 #: ``BSDF_ROUGHNESS_SQ_THRESH`` (kernel/svm/types.h): ``alpha_x alpha_y`` at or below: a mirror
 ROUGHNESS_SQ_THRESH = 2e-10
+#: the narrowest GGX width the sampler draws from: a lobe at roughness 0 (a mirror, which
+#: ``eval`` does not see) is still drawn as a very narrow one, so its pdf stays finite
+SAMPLER_ALPHA_FLOOR = 1e-7
 #: the shipped tables (brdf_fit.tables.cycles)
 CYCLES_TABLE_FILE = "cycles_ggx.npz"
 #: the node's defaults in Blender 4.5 (also the registry defaults)
@@ -458,12 +462,13 @@ class BlenderPrincipled(AbstractBRDF):
 
     def _dists(self):
         ax, ay = self.widths()
-        main = GGX(jnp.maximum(ax, 1e-7), jnp.maximum(ay, 1e-7)) \
-            if self.anisotropic is not None else GGX(jnp.maximum(ax, 1e-7))
+        f = SAMPLER_ALPHA_FLOOR
+        main = GGX(jnp.maximum(ax, f), jnp.maximum(ay, f)) \
+            if self.anisotropic is not None else GGX(jnp.maximum(ax, f))
         coat = None
         if self.coat_weight is not None:
             cr = self._opt("coat_roughness")
-            coat = GGX(jnp.maximum(cr * cr, 1e-7))
+            coat = GGX(jnp.maximum(cr * cr, f))
         return main, coat
 
     def pdf(self, wi, wo):
