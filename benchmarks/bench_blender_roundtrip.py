@@ -5,7 +5,7 @@ figures of the Blender target's row in docs/guide/renderers.md (issue 42).
 
 Needs a Blender Python (``make blender``; :func:`brdf_fit.convert.blender.find_blender_python`).
 For each material (a Principled BSDF made in Blender 4.5 by the export script, every other
-input at Blender's default):
+input at Blender's default: a plastic, a metal, a coated dielectric, a sheen, a brushed metal):
 
 1. Cycles renders it at a four-axis gonioreflectometer plan (``data_synth.plans.four_axis``:
    theta_i 0-80 deg by 20, theta_o 0-80 by 10, phi_o by 30 deg; direct light only, the
@@ -51,6 +51,8 @@ MATERIALS = {
                               ior=1.5),
     "coated blue": dict(base_color=[0.1, 0.2, 0.6], roughness=0.5, metallic=0.0, ior=1.5,
                         coat_weight=1.0, coat_roughness=0.1, coat_ior=1.5),
+    "sheen fabric": dict(base_color=[0.5, 0.05, 0.2], roughness=0.7, metallic=0.0, ior=1.5,
+                         sheen_weight=1.0, sheen_roughness=0.3),
     "brushed metal": dict(base_color=[0.8, 0.8, 0.8], roughness=0.3, metallic=1.0, ior=1.5,
                           anisotropic=0.8),
 }
@@ -113,10 +115,11 @@ def main(argv=None) -> int:
               f"select {row['select_s']:.1f} s", flush=True)
     tables = None
     if args.shader_tables:
-        from brdf_fit.models.blender_principled import _tables
+        from brdf_fit.models._cycles import tables as _tables
         from brdf_fit.tables.cycles import compare
 
-        tables = compare(args.shader_tables, dict(_tables()))
+        rebuilt = ("ggx_E", "ggx_Eavg", "ggx_gen_schlick_ior_s")  # the sheen's is transcribed
+        tables = compare(args.shader_tables, {k: _tables()[k] for k in rebuilt})
     info = {"command": "python " + " ".join(shlex.quote(a) for a in [sys.argv[0], *sys.argv[1:]]),
             "machine": machine_info(), "load": _loadavg(),
             "date": time.strftime("%Y-%m-%d"), "rows": rows, "tables": tables}

@@ -5,13 +5,14 @@ node lit by a light: the sum over the closures the node sets up of ``closure wei
 bsdf_eval``, divided by the cosine of the light direction, parametrised as the node's inputs
 (``Base Color``, ``Metallic``, ``Roughness``, ``IOR``, ``Specular IOR Level``, ``Specular
 Tint``, ``Anisotropic``, ``Anisotropic Rotation``, ``Coat Weight``, ``Coat Roughness``, ``Coat
-IOR``, ``Coat Tint``), so that a model fitted here is written to Blender with no loss
-(:func:`to_blender_inputs`, :mod:`brdf_fit.convert.blender`). Transcribed from Cycles'
-sources (the Blender 4.5 release branch of the Cycles repository):
+IOR``, ``Coat Tint``, ``Sheen Weight``, ``Sheen Roughness``, ``Sheen Tint``), so that a model
+fitted here is written to Blender with no loss (:func:`to_blender_inputs`,
+:mod:`brdf_fit.convert.blender`). Transcribed from Cycles' sources (the Blender 4.5 release
+branch of the Cycles repository; the helpers in :mod:`brdf_fit.models._cycles`):
 
 * ``src/kernel/svm/closure.h``, ``svm_node_closure_bsdf``, case ``CLOSURE_BSDF_PRINCIPLED_ID``:
-  the layering (coat over metal over specular over diffuse), the width mapping, the coat tint,
-  the specular IOR level;
+  the layering (sheen over coat over metal over specular over diffuse), the width mapping, the
+  coat tint, the specular IOR level;
 * ``src/kernel/closure/bsdf_microfacet.h``: ``bsdf_microfacet_eval`` (GGX ``D``, height-correlated
   Smith ``G2 = 1/(1 + Lambda_i + Lambda_o)``: B. Walter et al., "Microfacet models for refraction
   through rough surfaces", EGSR 2007, eq. 33; E. Heitz, "Understanding the masking-shadowing
@@ -25,6 +26,10 @@ sources (the Blender 4.5 release branch of the Cycles repository):
   model: M. Kutz et al., "Novel aspects of the Adobe Standard Material", 2021),
   ``F0_from_ior``, ``ior_from_F0``, ``closure_layering_weight``;
 * ``src/kernel/closure/bsdf_diffuse.h``: ``bsdf_diffuse_eval`` (Lambert);
+* ``src/kernel/closure/bsdf_sheen.h``: ``bsdf_sheen_setup``, ``bsdf_sheen_eval`` (T. Zeltner,
+  B. Burley, M. J.-Y. Chiang, "Practical Multiple-Scattering Sheen Using Linearly Transformed
+  Cosines", SIGGRAPH 2022 talks: a clamped cosine transformed by ``M^-1 = [[A, 0, B], [0, A,
+  0], [0, 0, 1]]`` in the view's tangent frame);
 * ``src/kernel/util/lookup_table.h``: the tables' clamped linear interpolation.
 
 Notation: ``wi`` toward the light, ``wo`` toward the viewer (Cycles' ``sd->wi`` is our ``wo``),
@@ -32,6 +37,8 @@ Notation: ``wi`` toward the light, ``wo`` toward the viewer (Cycles' ``sd->wi`` 
 ``G(alpha) = D G2 / (4 (n.wi) mu)`` the GGX lobe of width ``alpha``. Top to bottom, ``W``
 the weight left for the layers below (1 at the top, one value per channel)::
 
+    sheen:  W sw tint R L(wi),  L = (1/pi) (A / |M^-1 wi|^2)^2 / (n.wi)   (A, B, R: the table)
+           W <- W clamp(1 - max_channels(sw tint R), 0, 1)
     coat   (coat_weight > 1e-5):  W cw A_c F_diel(c; coat_ior) G(coat_roughness^2)
            W <- W clamp(1 - cw A_c est_c, 0, 1)                        (closure_layering_weight)
            W <- W mix(1, coat_tint^(1/cos_t), cw),  cos_t = sqrt(1 - (1 - mu^2)/coat_ior^2)
@@ -60,19 +67,23 @@ F0(eta)), 0, 1))`` for the specular. ``est`` is Cycles' estimate of a lobe's alb
 (``bsdf_microfacet_estimate_albedo``): ``mix(F0(coat_ior), 1, s)`` and ``mix(f0_s, 1, s)`` with
 ``s = ggx_gen_schlick_ior_s(rough, mu, sqrt((eta - 1)/(eta + 1)))``.
 
-The tables (``ggx_E``, ``ggx_Eavg``, ``ggx_gen_schlick_ior_s``) are this package's own, rebuilt
-by quadrature on Cycles' grids (:mod:`brdf_fit.tables.cycles`; shipped as
+The sheen's ``A``, ``B`` and albedo ``R`` come from Zeltner et al.'s table of fitted LTCs at
+(view cosine, sheen roughness), transcribed from Cycles (``resources/tables/cycles_sheen_ltc
+.npz``; an LTC whose ``A`` or ``R`` interpolates below 1e-5 is no closure). The other tables
+(``ggx_E``, ``ggx_Eavg``, ``ggx_gen_schlick_ior_s``) are this package's own, rebuilt by
+quadrature on Cycles' grids (:mod:`brdf_fit.tables.cycles`; shipped as
 ``resources/tables/cycles_ggx.npz``): measured against Cycles' printed tables, within 1.0e-6
 (``ggx_E``), 6.2e-7 (``ggx_Eavg``) and 1.9e-5 (``ggx_gen_schlick_ior_s``), which is the
 largest source of difference from a Cycles render (``tests/convert/test_blender.py``).
 
-Reciprocity: not reciprocal, as in Cycles: ``A``, ``est`` and the coat tint depend on the view
-``wo`` only (the registry entries declare the expected failure).
+Reciprocity: not reciprocal, as in Cycles: ``A``, ``est``, the coat tint and the sheen's LTC
+depend on the view ``wo`` only (the registry entries declare the expected failure).
 
-Not modelled: transmission, subsurface, emission, alpha, thin film, sheen, ``Diffuse
-Roughness`` > 0 (Oren-Nayar), normal and coat-normal maps, ``IOR`` below 1, the back side; the
-``Specular Tint`` and ``Anisotropic Rotation`` inputs are modelled by the class and left out of
-the registry entries (the tint couples the channels through ``max_channels``).
+Not modelled: transmission, subsurface, emission, alpha, thin film, ``Diffuse Roughness`` > 0
+(Oren-Nayar), normal and coat-normal maps, ``IOR`` below 1, the back side; the ``Specular
+Tint``, ``Sheen Tint``, ``Coat Tint`` and ``Anisotropic Rotation`` inputs are modelled by the
+class and left out of the registry entries (the tints couple the channels through
+``max_channels``).
 
 Epsilons: ``ROUGHNESS_SQ_THRESH = 2e-10`` (Cycles': ``alpha_x alpha_y`` at or below, the lobe
 is a mirror, which ``eval`` does not see: 0). Cycles also skips a coat or metal closure whose
@@ -82,13 +93,10 @@ dielectric sat on ``metallic = 1e-5``, where the value steps, for 247 steps.
 
 Sampling (not Cycles'; the density is exact): a lobe by probabilities proportional to the
 estimated albedos at ``wo``, GGX visible normals (spherical caps) for the glossy lobes,
-cosine-weighted for the diffuse.
+cosine-weighted for the diffuse and the sheen.
 """
 
 from __future__ import annotations
-
-import functools
-import importlib.resources
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -101,22 +109,19 @@ from brdf_fit.core.numerics import INV_PI, safe_div, safe_sqrt
 from brdf_fit.core.params import Channels, Entry, Param, Scalar, bounded
 from brdf_fit.core.validate import check_param
 from brdf_fit.core.warp import sample_cosine_hemisphere
+from brdf_fit.models import _cycles as _cy
 from brdf_fit.models._base import AbstractBRDF, QuadratureLobe, expand_channels
+from brdf_fit.models._cycles import (
+    ROUGHNESS_SQ_THRESH,
+    SAMPLER_ALPHA_FLOOR,
+    SHEEN_INVALID,
+    SHEEN_ROUGHNESS_MIN,
+)
 from brdf_fit.models._lobes import finish_sample, half_geometry, sanitize
 
-__all__ = ["BLENDER_DEFAULTS", "CLOSURE_WEIGHT_CUTOFF", "CYCLES_TABLE_FILE", "INPUT_NAMES",
-           "ROUGHNESS_SQ_THRESH", "SAMPLER_ALPHA_FLOOR", "BlenderPrincipled", "registry_entries",
+__all__ = ["BLENDER_DEFAULTS", "INPUT_NAMES", "BlenderPrincipled", "registry_entries",
            "to_blender_inputs"]
 
-#: ``CLOSURE_WEIGHT_CUTOFF`` (kernel/svm/types.h): a coat or metallic weight at or below is skipped
-CLOSURE_WEIGHT_CUTOFF = 1e-5
-#: ``BSDF_ROUGHNESS_SQ_THRESH`` (kernel/svm/types.h): ``alpha_x alpha_y`` at or below: a mirror
-ROUGHNESS_SQ_THRESH = 2e-10
-#: the narrowest GGX width the sampler draws from: a lobe at roughness 0 (a mirror, which
-#: ``eval`` does not see) is still drawn as a very narrow one, so its pdf stays finite
-SAMPLER_ALPHA_FLOOR = 1e-7
-#: the shipped tables (brdf_fit.tables.cycles)
-CYCLES_TABLE_FILE = "cycles_ggx.npz"
 #: the node's defaults in Blender 4.5 (also the registry defaults)
 BLENDER_DEFAULTS = {
     "base_color": 0.8,
@@ -131,6 +136,9 @@ BLENDER_DEFAULTS = {
     "coat_roughness": 0.03,
     "coat_ior": 1.5,
     "coat_tint": 1.0,
+    "sheen_weight": 0.0,
+    "sheen_roughness": 0.5,
+    "sheen_tint": 1.0,
 }
 #: the node's input socket of each parameter
 INPUT_NAMES = {
@@ -146,8 +154,11 @@ INPUT_NAMES = {
     "coat_roughness": "Coat Roughness",
     "coat_ior": "Coat IOR",
     "coat_tint": "Coat Tint",
+    "sheen_weight": "Sheen Weight",
+    "sheen_roughness": "Sheen Roughness",
+    "sheen_tint": "Sheen Tint",
 }
-_COLOURS = ("base_color", "specular_tint", "coat_tint")
+_COLOURS = ("base_color", "specular_tint", "coat_tint", "sheen_tint")
 #: the IOR interval of the entries: Blender's node accepts any IOR >= 0; below 1 Cycles inverts
 #: it (not modelled), and 4 covers dielectrics (the Specular IOR Level reaches F0 up to 0.16)
 IOR_MAX = 4.0
@@ -158,103 +169,6 @@ _REF_CYCLES = ("Blender 4.5 LTS Cycles, Principled BSDF (src/kernel/svm/closure.
 _REF_KUTZ = "M. Kutz et al., Novel aspects of the Adobe Standard Material, 2021 (F82 tint)"
 _REF_KC = ("C. Kulla, A. Conty, Revisiting Physically Based Shading at Imageworks, SIGGRAPH 2017 "
            "course notes (multiple-scattering compensation)")
-
-
-@functools.lru_cache(maxsize=1)
-def _tables() -> dict[str, np.ndarray]:
-    """The shipped tables as float64 NumPy arrays (loaded once)."""
-    ref = importlib.resources.files("brdf_fit") / "resources" / "tables" / CYCLES_TABLE_FILE
-    with importlib.resources.as_file(ref) as p, np.load(p) as z:
-        return {k: np.asarray(z[k], np.float64) for k in
-                ("ggx_E", "ggx_Eavg", "ggx_gen_schlick_ior_s")}
-
-
-def _lerp_axis(x, n: int):
-    """``lookup_table_read`` along one axis of ``n`` nodes ``i / (n - 1)``: ``x`` clamped to
-    [0, 1]; ``(i, f)`` with the value ``(1 - f) v[i] + f v[i + 1]``."""
-    t = jnp.clip(x, 0.0, 1.0) * (n - 1)
-    fi = jnp.minimum(jnp.floor(t), n - 2)
-    return fi.astype(jnp.int32), t - fi
-
-
-def _lookup_1d(table, x, dtype=None):
-    """``lookup_table_read(x)`` (the table in ``dtype``, default ``x``'s)."""
-    i, f = _lerp_axis(x, table.shape[0])
-    t = jnp.asarray(table, jnp.result_type(x) if dtype is None else dtype)
-    return (1 - f) * t[i] + f * t[i + 1]
-
-
-def _lookup_2d(table, x, y):
-    """``lookup_table_read_2D(x, y)`` of a ``[y, x]`` table (or of ``table[k]`` for each ``k``
-    of a leading index array: ``table`` ``[z, y, x]`` with ``k`` given)."""
-    ny, nx = table.shape[-2:]
-    ix, fx = _lerp_axis(x, nx)
-    iy, fy = _lerp_axis(y, ny)
-    t = jnp.asarray(table, jnp.result_type(x, y))
-    v00, v01 = t[..., iy, ix], t[..., iy, ix + 1]
-    v10, v11 = t[..., iy + 1, ix], t[..., iy + 1, ix + 1]
-    return (1 - fy) * ((1 - fx) * v00 + fx * v01) + fy * ((1 - fx) * v10 + fx * v11)
-
-
-def _lookup_3d(table, x, y, z):
-    """``lookup_table_read_3D(x, y, z)`` of a ``[z, y, x]`` table."""
-    nz, ny, nx = table.shape
-    iz, fz = _lerp_axis(z, nz)
-    ix, fx = _lerp_axis(x, nx)
-    iy, fy = _lerp_axis(y, ny)
-    t = jnp.asarray(table, jnp.result_type(x, y, z))
-
-    def plane(k):
-        v00, v01 = t[k, iy, ix], t[k, iy, ix + 1]
-        v10, v11 = t[k, iy + 1, ix], t[k, iy + 1, ix + 1]
-        return (1 - fy) * ((1 - fx) * v00 + fx * v01) + fy * ((1 - fx) * v10 + fx * v11)
-
-    return (1 - fz) * plane(iz) + fz * plane(iz + 1)
-
-
-def f0_from_ior(ior):
-    """``F0_from_ior``: ``((ior - 1)/(ior + 1))^2``."""
-    r = (ior - 1.0) / (ior + 1.0)
-    return r * r
-
-
-def ior_from_f0(f0):
-    """``ior_from_F0``: ``(1 + sqrt(f0))/(1 - sqrt(f0))``, ``f0`` clamped to [0, 0.99]."""
-    s = safe_sqrt(jnp.clip(f0, 0.0, 0.99))
-    return (1.0 + s) / (1.0 - s)
-
-
-def fresnel_dielectric_fss(eta):
-    """``fresnel_dielectric_Fss`` for ``eta >= 1``: Kulla & Conty's (2017) fit of the
-    cosine-weighted average Fresnel, ``(eta - 1)/(4.08567 + 1.00071 eta)``."""
-    return (eta - 1.0) / (4.08567 + 1.00071 * eta)
-
-
-def _remapped(c, eta):
-    """``clamp((F_diel(c; eta) - F0(eta)) / (1 - F0(eta)), 0, 1)``: the Principled BSDF's
-    interpolation factor between ``F0`` and 1 (``microfacet_fresnel``, negative exponent)."""
-    f0 = f0_from_ior(eta)
-    return jnp.clip(safe_div(dielectric(c, eta) - f0, 1.0 - f0), 0.0, 1.0)
-
-
-def _compensation(rough, mu, fss):
-    """``(A, darkening)`` of ``microfacet_ggx_preserve_energy`` (module docstring): ``eval``
-    carries ``A = energy_scale x darkening``, the closure's weight (hence its albedo, which
-    layers the lobes below) only ``darkening = A / (1 + (1 - E)/E)``. ``rough`` and ``mu`` per
-    direction, ``fss`` per channel."""
-    tab = _tables()
-    E = _lookup_2d(tab["ggx_E"], rough, mu)
-    E_avg = _lookup_1d(tab["ggx_Eavg"], rough, jnp.result_type(rough, mu))
-    missing = (1.0 - E) / E
-    f_ms = fss * E_avg / (1.0 - fss * (1.0 - E_avg))
-    A = 1.0 + f_ms * missing
-    return A, A / (1.0 + missing)
-
-
-def _estimated_s(rough, mu, eta):
-    """``ggx_gen_schlick_ior_s`` at ``(rough, mu, z = sqrt((eta - 1)/(eta + 1)))``."""
-    z = safe_sqrt(jnp.abs((eta - 1.0) / (eta + 1.0)))
-    return _lookup_3d(_tables()["ggx_gen_schlick_ior_s"], rough, mu, z)
 
 
 class BlenderPrincipled(AbstractBRDF):
@@ -278,12 +192,16 @@ class BlenderPrincipled(AbstractBRDF):
     coat_roughness: Scalar | None = bounded(None, lo=0.0, hi=1.0)
     coat_ior: Scalar | None = bounded(None, lo=1.0, hi=IOR_MAX)
     coat_tint: Channels | None = bounded(None, lo=0.0, hi=1.0, channels=True)
+    sheen_weight: Scalar | None = bounded(None, lo=0.0, hi=1.0)
+    sheen_roughness: Scalar | None = bounded(None, lo=0.0, hi=1.0)
+    sheen_tint: Channels | None = bounded(None, lo=0.0, hi=1.0, channels=True)
     multiscatter: bool = eqx.field(static=True, default=True)
 
     def __check_init__(self):
         for name in ("base_color", "roughness", "metallic", "specular_ior_level",
                      "specular_tint", "anisotropic", "anisotropic_rotation", "coat_weight",
-                     "coat_roughness", "coat_tint"):
+                     "coat_roughness", "coat_tint", "sheen_weight", "sheen_roughness",
+                     "sheen_tint"):
             value = getattr(self, name)
             if value is not None:
                 check_param(name, value, lo=0.0, hi=1.0, owner="BlenderPrincipled")
@@ -328,10 +246,10 @@ class BlenderPrincipled(AbstractBRDF):
 
     def _specular_eta(self):
         """``(f0, eta)`` of the specular layer after the IOR level (``svm_node_closure_bsdf``)."""
-        f0 = f0_from_ior(self.ior)
+        f0 = _cy.f0_from_ior(self.ior)
         if self.specular_ior_level is not None:
             f0 = f0 * (2.0 * self.specular_ior_level)
-        return f0, ior_from_f0(f0)
+        return f0, _cy.ior_from_f0(f0)
 
     # ------------------------------------------------------------------ the BRDF
 
@@ -352,13 +270,26 @@ class BlenderPrincipled(AbstractBRDF):
         w, est = {}, {}
         ax, ay = self.widths()
         rough = safe_sqrt(safe_sqrt(ax * ay))
+        if self.sheen_weight is not None:
+            # the first layer: Zeltner et al.'s LTC sheen (bsdf_sheen_setup), its weight
+            # sheen_weight x tint x the table's albedo, which also layers what is below
+            a, b, albedo, on = self._sheen_ltc(mu)
+            tint = self._opt("sheen_tint")
+            k = jnp.where(on, self.sheen_weight * albedo, 0.0)
+            w["sheen"] = W * ex(k) * tint
+            w["sheen_ab"] = (a, b)
+            ratio = ex(k) * tint * jnp.ones_like(W)
+            s_max = jnp.max(ratio, axis=-1) if ch else ratio
+            est["sheen"] = mean_c(W) * s_max
+            W = W * ex(jnp.clip(1.0 - s_max, 0.0, 1.0))
         if self.coat_weight is not None:
             cw = self.coat_weight
             on = cw >= 0.0  # not Cycles' cutoff (module docstring, "Epsilons")
             cr, ci = self._opt("coat_roughness"), self._opt("coat_ior")
-            a_c, dark_c = _compensation(cr, mu, fresnel_dielectric_fss(ci))  # always compensated
-            f0_c = f0_from_ior(ci)
-            e_c = jnp.where(ci > 1.0, f0_c + (1.0 - f0_c) * _estimated_s(cr, mu, ci), 0.0)
+            # the coat is compensated whatever the distribution (setup_fresnel_dielectric)
+            a_c, dark_c = _cy.compensation(cr, mu, _cy.fresnel_dielectric_fss(ci))
+            f0_c = _cy.f0_from_ior(ci)
+            e_c = jnp.where(ci > 1.0, f0_c + (1.0 - f0_c) * _cy.estimated_s(cr, mu, ci), 0.0)
             w["coat"] = W * ex(jnp.where(on, cw * a_c, 0.0))
             est["coat"] = jnp.where(on, cw * dark_c * e_c, 0.0)
             W = W * ex(jnp.where(on, jnp.clip(1.0 - cw * dark_c * e_c, 0.0, 1.0), 1.0))
@@ -374,7 +305,7 @@ class BlenderPrincipled(AbstractBRDF):
         b = self._f82_b(f0_m, tint_s)
         a_m = 1.0
         if self.multiscatter:
-            a_m, _ = _compensation(ex(rough), ex(mu), f0_m + (1.0 - f0_m) / 21.0 - b / 126.0)
+            a_m, _ = _cy.compensation(ex(rough), ex(mu), f0_m + (1.0 - f0_m) / 21.0 - b / 126.0)
         w["metal"] = W * jnp.where(on, m, 0.0) * a_m
         w["metal_b"] = b
         est["metal"] = mean_c(W * jnp.where(on, m, 0.0))
@@ -385,10 +316,10 @@ class BlenderPrincipled(AbstractBRDF):
         f0_s = jnp.clip(f0 * tint_s, 0.0, 1.0)
         a_s = dark_s = 1.0
         if self.multiscatter:
-            fe = f0_from_ior(eta)
-            s_avg = jnp.clip(safe_div(fresnel_dielectric_fss(eta) - fe, 1.0 - fe), 0.0, 1.0)
-            a_s, dark_s = _compensation(ex(rough), ex(mu), f0_s + (1.0 - f0_s) * s_avg)
-        e_s = dark_s * (f0_s + (1.0 - f0_s) * ex(_estimated_s(rough, mu, eta)))
+            fe = _cy.f0_from_ior(eta)
+            s_avg = jnp.clip(safe_div(_cy.fresnel_dielectric_fss(eta) - fe, 1.0 - fe), 0.0, 1.0)
+            a_s, dark_s = _cy.compensation(ex(rough), ex(mu), f0_s + (1.0 - f0_s) * s_avg)
+        e_s = dark_s * (f0_s + (1.0 - f0_s) * ex(_cy.estimated_s(rough, mu, eta)))
         e_max = jnp.max(e_s, axis=-1) if ch else e_s  # closure_layering_weight's reduce_max
         w["specular"] = W * jnp.where(on, 1.0, 0.0) * a_s
         w["specular_f0"] = f0_s
@@ -398,6 +329,16 @@ class BlenderPrincipled(AbstractBRDF):
         w["diffuse"] = W * self.base_color
         est["diffuse"] = mean_c(w["diffuse"])
         return w, est
+
+    def _sheen_ltc(self, mu):
+        """``(A, B, albedo, valid)`` of the sheen at view cosine ``mu`` (``bsdf_sheen_setup``:
+        the table read at ``(mu, clamped roughness)``)."""
+        t = _cy.tables()["sheen_ltc"]
+        r = jnp.clip(self._opt("sheen_roughness"), SHEEN_ROUGHNESS_MIN, 1.0)
+        a = _cy.lookup_2d(t[0], mu, r)
+        b = _cy.lookup_2d(t[1], mu, r)
+        albedo = _cy.lookup_2d(t[2], mu, r)
+        return a, b, albedo, (jnp.abs(a) >= SHEEN_INVALID) & (albedo >= SHEEN_INVALID)
 
     @staticmethod
     def _f82_b(f0, tint):
@@ -433,7 +374,7 @@ class BlenderPrincipled(AbstractBRDF):
         total = w["metal"] * f82 * ex(g_main)
         # specular: the remapped dielectric Fresnel
         f0_s = w["specular_f0"]
-        f_s = f0_s + (1.0 - f0_s) * ex(_remapped(c, w["specular_eta"]))
+        f_s = f0_s + (1.0 - f0_s) * ex(_cy.remapped_fresnel(c, w["specular_eta"]))
         total = total + w["specular"] * f_s * ex(g_main)
         # coat
         if self.coat_weight is not None:
@@ -443,6 +384,8 @@ class BlenderPrincipled(AbstractBRDF):
             g_c = dc.D(hx, hy, hz) * 0.5 / (oz * dc.P(ix, iy, iz) + iz * dc.P(ox, oy, oz))
             g_c = jnp.where(coat_on, g_c, 0.0)
             total = total + w["coat"] * ex(dielectric(c, self._opt("coat_ior")) * g_c)
+        if self.sheen_weight is not None:
+            total = total + w["sheen"] * ex(_cy.sheen_lobe(w["sheen_ab"], ix, iy, iz, ox, oy))
         total = total + w["diffuse"] * INV_PI
         return jnp.where(ex(valid), total, 0.0)
 
@@ -451,7 +394,7 @@ class BlenderPrincipled(AbstractBRDF):
         to the estimated albedos of the diffuse, the metal and specular (one GGX lobe) and the
         coat."""
         _, est = self._layers(mu)
-        pd = est["diffuse"]
+        pd = est["diffuse"] + est.get("sheen", jnp.zeros_like(mu))  # sheen: cosine-sampled
         pm = est["metal"] + est["specular"]
         pc = est.get("coat", jnp.zeros_like(mu))
         tot = pd + pm + pc
@@ -530,6 +473,9 @@ _ENTRY_PARAMS = {
     "coat_weight": ("Coat Weight: a dielectric GGX coat over the rest", False, 0.0, 1.0),
     "coat_roughness": ("Coat Roughness: the coat's GGX alpha = coat_roughness^2", False, 0.0, 1.0),
     "coat_ior": ("Coat IOR", False, 1.0, IOR_MAX),
+    "sheen_weight": ("Sheen Weight: Zeltner et al.'s LTC microfiber sheen over the rest", False,
+                     0.0, 1.0),
+    "sheen_roughness": ("Sheen Roughness", False, 0.0, 1.0),
 }
 
 
@@ -544,6 +490,7 @@ def _param(name: str) -> Param:
 _BASIC = ("base_color", "roughness", "metallic", "ior")
 _ANISO = _BASIC + ("anisotropic",)
 _COAT = _BASIC + ("coat_weight", "coat_roughness", "coat_ior")
+_SHEEN = _BASIC + ("sheen_weight", "sheen_roughness")
 
 
 def _builder(**params):
@@ -575,15 +522,16 @@ def to_blender_inputs(params: dict) -> dict:
 
 
 _NATIVE = {"target": "blender", "native_export": to_blender_inputs}
-_NOT_RECIPROCAL = {"reciprocity": "Cycles' multiple-scattering compensation, layering weights "
-                                  "and coat tint depend on the view direction only"}
+_NOT_RECIPROCAL = {"reciprocity": "Cycles' multiple-scattering compensation, layering weights, "
+                                  "coat tint and sheen LTC depend on the view direction only"}
 
 
 def registry_entries():
     """:class:`~brdf_fit.core.params.Entry` objects of Cycles' Principled BSDF (not registered
     here): ``blender-principled`` (base_color, roughness, metallic, ior),
-    ``blender-principled-aniso`` (+ anisotropic) and ``blender-principled-coat`` (+ coat_weight,
-    coat_roughness, coat_ior); defaults are Blender's, the distribution Multiscatter GGX."""
+    ``blender-principled-aniso`` (+ anisotropic), ``blender-principled-coat`` (+ coat_weight,
+    coat_roughness, coat_ior) and ``blender-principled-sheen`` (+ sheen_weight,
+    sheen_roughness); defaults are Blender's, the distribution Multiscatter GGX."""
     common = {"reference": f"{_REF_CYCLES}; {_REF_KUTZ}; {_REF_KC}",
               "sampler": ("lobe by estimated albedo: cosine / GGX visible normals (main, coat); "
                           "exact mixture pdf"),
@@ -602,5 +550,10 @@ def registry_entries():
         Entry(name="blender-principled-coat", builder=_builder,
               params=tuple(_param(n) for n in _COAT),
               description="blender-principled under Cycles' dielectric GGX coat",
+              tags=("native", "blender", "layered"), **common),
+        Entry(name="blender-principled-sheen", builder=_builder,
+              params=tuple(_param(n) for n in _SHEEN),
+              description=("blender-principled under Cycles' sheen (Zeltner et al. 2022's LTC "
+                           "microfiber, untinted)"),
               tags=("native", "blender", "layered"), **common),
     ]

@@ -62,6 +62,8 @@ NESTED: dict[str, tuple[str, dict]] = {
     "blender-principled-aniso": ("blender-principled", {"anisotropic": 0.0}),
     "blender-principled-coat": ("blender-principled", {"coat_weight": 0.0, "coat_roughness": 0.03,
                                                        "coat_ior": 1.5}),
+    "blender-principled-sheen": ("blender-principled", {"sheen_weight": 0.0,
+                                                        "sheen_roughness": 0.5}),
     "ggx-aniso": ("ggx", _ISO),
     "ggx-conductor-aniso": ("ggx-conductor", _ISO),
 }

@@ -145,7 +145,7 @@ TARGET_CANDIDATES = {
                 "mitsuba-principled"),
     "gltf": ("lambert", "gltf-pbr", "gltf-pbr-specular", "gltf-pbr-clearcoat",
              "gltf-pbr-sheen"),
-    "blender": ("blender-principled", "blender-principled-coat"),
+    "blender": ("blender-principled", "blender-principled-coat", "blender-principled-sheen"),
 }
 #: the candidates added when :func:`~brdf_fit.selection.anisotropy.detect_anisotropy` finds
 #: anisotropy (key None: no target)

@@ -38,8 +38,12 @@ checkout) and reports the largest difference per table; ``benchmarks/bench_cycle
 writes ``benchmarks/results/cycles_tables.md``. Cycles' own values carry the noise of their
 estimator (``2^23``, ``2^26`` and ``2^20`` samples) and six printed decimals.
 
+The sheen's LTC table is not rebuilt but transcribed from Cycles (:func:`write_sheen_table`,
+``cycles_sheen_ltc.npz``): it is Zeltner et al.'s (2022) fit of a volumetric sheen.
+
 The tables are shipped as package data (``brdf_fit/resources/tables/cycles_ggx.npz``; models
-may not import this module). Regenerate with ``python -m brdf_fit.tables.cycles``;
+may not import this module). Regenerate with ``python -m brdf_fit.tables.cycles
+[SHADER_TABLES]``;
 ``tests/tables/test_cycles_tables.py`` recomputes sample nodes and compares.
 """
 
@@ -60,11 +64,14 @@ from brdf_fit.core.quadrature import HALFVECTOR_N_PHI, HALFVECTOR_N_THETA, halfv
 from brdf_fit.tables.dfg import dfg_values
 from brdf_fit.tables.energy import e_avg_values
 
-__all__ = ["CYCLES_TABLE_FILE", "GRID_CLAMP", "IOR_Z_CLAMP", "compare", "cycles_tables",
-           "ior_from_z", "read_cycles_tables", "s_values", "write_cycles_tables"]
+__all__ = ["CYCLES_TABLE_FILE", "GRID_CLAMP", "IOR_Z_CLAMP", "SHEEN_TABLE_FILE", "compare",
+           "cycles_tables", "ior_from_z", "read_cycles_tables", "s_values", "write_cycles_tables",
+           "write_sheen_table"]
 
 #: the resource file (also named in brdf_fit.models.blender_principled)
 CYCLES_TABLE_FILE = "cycles_ggx.npz"
+#: the transcribed sheen table (also named in brdf_fit.models.blender_principled)
+SHEEN_TABLE_FILE = "cycles_sheen_ltc.npz"
 #: ``cycles_precompute``: roughness and cosine nodes clamped to ``[1e-4, 1]``
 GRID_CLAMP = 1e-4
 #: ``cycles_precompute``: the IOR coordinate clamped to ``[1e-4, 0.99]``
@@ -208,5 +215,30 @@ def compare(shader_tables, ours: dict[str, np.ndarray] | None = None) -> dict[st
     return out
 
 
+def write_sheen_table(shader_tables, path=None) -> pathlib.Path:
+    """Transcribe Cycles' ``table_sheen_ltc`` (3 x 32 x 32: the LTC coefficients ``A``, ``B``
+    and the albedo of the microfiber sheen, ``[roughness, cos]`` each) from a ``shader.tables``
+    file into the package resource. Not rebuilt: the coefficients are T. Zeltner, B. Burley,
+    M. J.-Y. Chiang's fit ("Practical Multiple-Scattering Sheen Using Linearly Transformed
+    Cosines", SIGGRAPH 2022 talks) of a volumetric microflake sheen, as Cycles ships them
+    (Blender 4.5, src/scene/shader.tables, Apache-2.0)."""
+    import json
+
+    table = read_cycles_tables(shader_tables)["sheen_ltc"].reshape(3, 32, 32)
+    path = (resource_path().with_name(SHEEN_TABLE_FILE) if path is None
+            else pathlib.Path(path))
+    meta = {"source": "Cycles (Blender 4.5 release branch) src/scene/shader.tables, "
+                      "table_sheen_ltc, transcribed",
+            "reference": "T. Zeltner, B. Burley, M. J.-Y. Chiang, Practical Multiple-Scattering "
+                         "Sheen Using Linearly Transformed Cosines, SIGGRAPH 2022 talks",
+            "layout": "[A | B | albedo][roughness, cos_view], 32 x 32 endpoint nodes in [0, 1]"}
+    np.savez(path, meta=np.array(json.dumps(meta)), sheen_ltc=table)
+    return path
+
+
 if __name__ == "__main__":
+    import sys
+
     print(write_cycles_tables())
+    if len(sys.argv) > 1:  # a Cycles shader.tables: transcribe the sheen table too
+        print(write_sheen_table(sys.argv[1]))

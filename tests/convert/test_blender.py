@@ -97,6 +97,8 @@ MATERIALS = {
                         anisotropic=0.7, anisotropic_rotation=0.1),
     "coated": dict(base_color=[0.1, 0.3, 0.8], roughness=0.5, metallic=0.0, ior=1.5,
                    coat_weight=0.8, coat_roughness=0.2, coat_ior=1.6),
+    "sheen": dict(base_color=[0.6, 0.1, 0.3], roughness=0.6, metallic=0.0, ior=1.5,
+                  sheen_weight=0.8, sheen_roughness=0.3, sheen_tint=[1.0, 0.9, 0.7]),
     "tinted": dict(base_color=[0.5, 0.5, 0.5], roughness=0.45, metallic=0.3, ior=1.45,
                    specular_ior_level=0.8, specular_tint=[1.0, 0.5, 0.2], coat_weight=0.5,
                    coat_tint=[0.9, 0.6, 0.3]),

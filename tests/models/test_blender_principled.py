@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from _helpers import random_dirs
 
+from brdf_fit.models import _cycles as cy
 from brdf_fit.models import blender_principled as bp
 from brdf_fit.models.blender_principled import BlenderPrincipled
 from brdf_fit.verify.albedo import directional_albedo
@@ -107,23 +108,23 @@ TABLE_DIFFERENCE = {"ggx_E": 1.0e-6, "ggx_Eavg": 6.2e-7, "ggx_gen_schlick_ior_s"
 
 @pytest.mark.parametrize("name, index, value", CYCLES_PRINTED)
 def test_shipped_tables_agree_with_cycles_printed_values(name, index, value):
-    table = bp._tables()[name].reshape(-1)
+    table = cy.tables()[name].reshape(-1)
     assert abs(table[index] - value) <= TABLE_DIFFERENCE[name]
 
 
 def test_table_lookup_is_cycles_interpolation():
     """At the nodes the lookup returns the node's value; between them it is linear along each
     axis; outside [0, 1] it clamps (lookup_table.h)."""
-    E = bp._tables()["ggx_E"]
+    E = cy.tables()["ggx_E"]
     xs = np.array([0.0, 5 / 31, 1.0])
     ys = np.array([0.0, 20 / 31, 1.0])
-    got = np.asarray(bp._lookup_2d(E, xs[None, :], ys[:, None]))
+    got = np.asarray(cy.lookup_2d(E, xs[None, :], ys[:, None]))
     np.testing.assert_allclose(got, E[np.ix_([0, 20, 31], [0, 5, 31])], rtol=1e-14)
-    mid = float(bp._lookup_2d(E, 5.5 / 31, 20 / 31))
+    mid = float(cy.lookup_2d(E, 5.5 / 31, 20 / 31))
     assert mid == pytest.approx(0.5 * (E[20, 5] + E[20, 6]), rel=1e-14)
-    assert float(bp._lookup_2d(E, -1.0, 2.0)) == pytest.approx(E[31, 0], rel=1e-14)
-    S = bp._tables()["ggx_gen_schlick_ior_s"]
-    got3 = float(bp._lookup_3d(S, 3 / 15, 7 / 15, 11.5 / 15))
+    assert float(cy.lookup_2d(E, -1.0, 2.0)) == pytest.approx(E[31, 0], rel=1e-14)
+    S = cy.tables()["ggx_gen_schlick_ior_s"]
+    got3 = float(cy.lookup_3d(S, 3 / 15, 7 / 15, 11.5 / 15))
     assert got3 == pytest.approx(0.5 * (S[11, 7, 3] + S[12, 7, 3]), rel=1e-14)
 
 
@@ -134,3 +135,25 @@ def test_inputs_map_to_the_node_sockets():
                       "Coat Tint": [0.5, 0.5, 0.5, 1.0]}
     with pytest.raises(ValueError, match="not an input"):
         bp.to_blender_inputs({"sheen": 1.0})
+
+
+@pytest.mark.parametrize("mu, r", [(0.9, 0.3), (0.5, 0.5), (0.2, 1.0), (0.05, 0.7)])
+def test_sheen_lobe_is_a_normalised_ltc(mu, r):
+    """The sheen lobe is the clamped cosine transformed by M^-1 = [[A, 0, B], [0, A, 0],
+    [0, 0, 1]] (Zeltner et al. 2022): a density over the upper hemisphere, whose integral is 1
+    whatever A and B (the table's albedo R then scales it), checked by a Gauss-Legendre product
+    rule; the view's tangent frame (make_orthonormals_safe_tangent) turns it with the view."""
+    t = cy.tables()["sheen_ltc"]
+    a = float(cy.lookup_2d(t[0], mu, r))
+    b = float(cy.lookup_2d(t[1], mu, r))
+    x, w = np.polynomial.legendre.leggauss(400)
+    c = 0.5 * (x + 1.0)  # cos(theta) in (0, 1)
+    phi = math.pi * (x + 1.0)
+    C, P = np.meshgrid(c, phi, indexing="ij")
+    W = np.outer(0.5 * w, math.pi * w)
+    S = np.sqrt(1.0 - C * C)
+    for view_phi in (0.0, 1.1):
+        so = math.sqrt(1.0 - mu * mu)
+        ox, oy = so * math.cos(view_phi), so * math.sin(view_phi)
+        lobe = np.asarray(cy.sheen_lobe((a, b), S * np.cos(P), S * np.sin(P), C, ox, oy))
+        assert np.sum(W * lobe * C) == pytest.approx(1.0, abs=1e-10)  # measured 2e-14

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from brdf_fit.models.blender_principled import _tables
+from brdf_fit.models._cycles import tables as _tables
 from brdf_fit.tables import cycles as tc
 from brdf_fit.tables.dfg import dfg_values
 
