@@ -527,6 +527,16 @@ def fit(
                 params, se, rms, codes, finite, cov, grad = _dense_stderr(
                     jitted, u, arrays, fx, n_used * C, m_eff, sandwich, p)
             ok = bool(ok) and _bounds.inward_gradient_free(layout, *grad)
+            u3 = None if ok else _bounds.release_inward(layout, np.asarray(u), *grad)
+            if u3 is not None:
+                # the loss pulls a bound entry inward: released just inside, the solver goes on
+                *sol3, loss3 = jitted.run(jnp.asarray(u3, dtype), arrays, fx)
+                if float(loss3) <= loss:
+                    (u, ok, steps3), loss = sol3, float(loss3)
+                    steps = int(steps) + int(steps3)
+                    params, se, rms, codes, finite, cov, grad = _dense_stderr(
+                        jitted, u, arrays, fx, n_used * C, m_eff, sandwich, p)
+                    ok = bool(ok) and _bounds.inward_gradient_free(layout, *grad)
             if not ok:
                 ok = _bounds.converged_at_bounds(layout, *grad, rtol, atol)
     stderr, bound_names = {}, ()

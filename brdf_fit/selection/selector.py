@@ -85,6 +85,18 @@ from brdf_fit.fitting.problem import FitError
 from brdf_fit.fitting.single import fit, json_floats
 from brdf_fit.models._base import evaluate
 from brdf_fit.selection.anisotropy import AnisotropyTest, detect_anisotropy
+from brdf_fit.selection.candidates import (
+    ANISOTROPIC_CANDIDATES,
+    DEFAULT_CANDIDATES,
+    EXACT_EXPORTS,
+    FAMILIES,
+    TARGET_CANDIDATES,
+    TARGETS,
+    anisotropic_candidates,
+    exports_exactly,
+    family_candidates,
+    target_candidates,
+)
 from brdf_fit.selection.costs import (  # noqa: F401 (re-exported)
     COST_PAIRS,
     COST_ROUNDS,
@@ -92,7 +104,13 @@ from brdf_fit.selection.costs import (  # noqa: F401 (re-exported)
     live_cost,
     measure_cost,
 )
-from brdf_fit.selection.nesting import base_of, choice_costs, lobe_gains, refit_lobe_test
+from brdf_fit.selection.nesting import (
+    base_of,
+    choice_costs,
+    decisive_extension,
+    lobe_gains,
+    refit_lobe_test,
+)
 
 __all__ = ["ANISOTROPIC_CANDIDATES", "CEILING_ABOVE_NOISE", "COST_PAIRS", "COST_ROUNDS",
            "DEFAULT_CANDIDATES", "ERROR_DEFINITION", "EXACT_EXPORTS", "FAMILIES", "TARGETS",
@@ -105,103 +123,22 @@ ERROR_DEFINITION = (
     "channels: sqrt(sum w (m - f)^2 cos_i^2 / sum w f^2 cos_i^2)"
 )
 
-#: the default candidates: one or two of each family, diffuse to specular, cheap to costly
-DEFAULT_CANDIDATES = (
-    "lambert", "oren-nayar", "modified-phong", "blinn-phong", "ward", "beckmann", "ggx",
-    "ggx-plastic", "ggx-conductor", "cook-torrance",
-)
-
-#: named candidate families (``select(..., family=NAME)``, ``brdf-fit select --family NAME``):
-#: the registry entries that answer one question each. ``"all"`` is every registry entry that
-#: can be fitted (not a delta lobe): 40-odd fits, minutes, for when the question is open.
-FAMILIES = {
-    "default": DEFAULT_CANDIDATES,
-    # a matte surface: how much retro-reflection and darkening at grazing does it need?
-    "diffuse": ("lambert", "oren-nayar", "oren-nayar-qualitative", "minnaert", "lewis"),
-    # the Phong catalogue, as old renderers and MTL files carry it
-    "phong": ("modified-phong", "modified-phong-fresnel", "blinn-phong", "blinn-phong-approx",
-              "phong-energy-normalized", "blinn-phong-microfacet"),
-    # isotropic microfacet specular lobes: which NDF, which masking, single or multiple scattering
-    "microfacet": ("beckmann", "beckmann-walter", "ggx", "ggx-separable", "ggx-ms",
-                   "ggx-ms-turquin", "cook-torrance", "cook-torrance-1982"),
-    # diffuse base plus a specular coat: summed, coupled or layered
-    "plastic": ("ggx-plastic", "torrance-sparrow", "ashikhmin-shirley", "kelemen",
-                "granier-heidrich", "ward"),
-    # metals: exact conductor Fresnel, single and multiple scattering
-    "conductor": ("ggx-conductor", "ggx-conductor-ms", "ggx", "cook-torrance"),
-    # brushed surfaces: two widths
-    "anisotropic": ("ggx-aniso", "beckmann-aniso", "ward", "ashikhmin-shirley", "lafortune",
-                    "ggx-conductor-aniso"),
-}
-
-
-#: renderers and formats a selection can target
-TARGETS = ("mitsuba", "gltf", "blender")
-#: the default candidates of a target: its native entries, cheap to costly (anisotropic ones
-#: join when the data show anisotropy: :data:`ANISOTROPIC_CANDIDATES`)
-TARGET_CANDIDATES = {
-    "mitsuba": ("lambert", "mitsuba-roughconductor", "mitsuba-roughconductor-beckmann",
-                "mitsuba-roughplastic", "mitsuba-roughplastic-beckmann",
-                "mitsuba-principled"),
-    "gltf": ("lambert", "gltf-pbr", "gltf-pbr-specular", "gltf-pbr-clearcoat",
-             "gltf-pbr-sheen"),
-    "blender": ("blender-principled", "blender-principled-coat", "blender-principled-sheen"),
-}
-#: the candidates added when :func:`~brdf_fit.selection.anisotropy.detect_anisotropy` finds
-#: anisotropy (key None: no target)
-ANISOTROPIC_CANDIDATES = {
-    None: ("ggx-aniso", "ggx-conductor-aniso"),
-    "mitsuba": ("mitsuba-roughconductor-aniso", "mitsuba-roughconductor-beckmann-aniso",
-                "mitsuba-principled-aniso"),
-    "gltf": ("gltf-pbr-anisotropy",),
-    "blender": ("blender-principled-aniso",),
-}
-#: entries of the literature a target holds exactly (besides the target's native entries):
-#: Lambert is Mitsuba's ``diffuse`` and glTF's dielectric with ``specularFactor`` 0; glTF's
-#: metal branch is ``ggx``; Mitsuba's ``principled`` with metallic 1 is ``ggx-separable``
-EXACT_EXPORTS = {
-    "mitsuba": ("lambert", "ggx-separable"),
-    "gltf": ("lambert", "ggx"),
-    "blender": (),
-}
 #: the fewest starts a candidate tagged "layered" is fitted from (lobes mixed by weights whose
 #: best values are often an end of their interval: metallic 0 or 1, a coat weight 1). One
 #: start fitted a Cycles-rendered copper (metallic 1) with blender-principled at metallic 0.72
 #: and base colour 1, 15% error, so the coated extension was chosen for a bare metal; 4 starts
 #: find the metal (error 2e-6)
 LAYERED_STARTS = 4
+#: a candidate tagged "layered" is fitted in this metric first (from LAYERED_STARTS starts),
+#: then polished in the selection's absolute metric from there: in the absolute metric a sharp
+#: coat peak outweighs the lobes beneath it by orders of magnitude and the solve crawls. A
+#: Cycles-rendered coated blue (coat weight 1, coat roughness 0.1, base roughness 0.5) fitted in
+#: it from 4 starts stopped at coat weight 0.87 after 256 steps (0.996 after 1024), so the
+#: uncoated entry was chosen; the log fit reaches the set values in 305 steps, the polish
+#: converges in 16
+LAYERED_PREFIT_METRIC = "log"
 #: the absolute error above the noise level beyond which no candidate represents a material
 CEILING_ABOVE_NOISE = 0.05
-
-
-def exports_exactly(name: str, target: str) -> bool:
-    """Whether registry entry ``name`` is written to ``target`` with no loss (a native entry of
-    the target, or one of :data:`EXACT_EXPORTS`)."""
-    e = registry.get(name)
-    return e.target == target or e.name in EXACT_EXPORTS.get(target, ())
-
-
-def target_candidates(target: str) -> tuple[str, ...]:
-    """The default candidates of ``target`` (:data:`TARGET_CANDIDATES`)."""
-    if target not in TARGETS:
-        raise ValueError(f"unknown target {target!r}; known: {', '.join(TARGETS)}")
-    return TARGET_CANDIDATES[target]
-
-
-def anisotropic_candidates(target: str | None) -> tuple[str, ...]:
-    """The candidates added when the data show anisotropy (:data:`ANISOTROPIC_CANDIDATES`)."""
-    return ANISOTROPIC_CANDIDATES[target]
-
-
-def family_candidates(family: str) -> tuple[str, ...]:
-    """The registry names of a named family (:data:`FAMILIES`; ``"all"``: every non-delta
-    entry). An unknown family is a ``ValueError`` that lists the known ones."""
-    if family == "all":
-        return tuple(e.name for e in registry.entries() if "delta" not in e.tags)
-    if family not in FAMILIES:
-        raise ValueError(f"unknown family {family!r}; known: "
-                         + ", ".join([*FAMILIES, "all"]))
-    return FAMILIES[family]
 
 
 #: the default budget: this many times the best candidate's error ...
@@ -405,11 +342,16 @@ def _choose_names(candidates, family, target, data, anisotropy):
 def _fit_candidate(e, plain, data, n_res, checks, max_steps, multistart, seed, costs,
                    measure=True):
     t0 = time.perf_counter()
-    if "layered" in e.tags:
-        multistart = max(multistart, LAYERED_STARTS)
     try:
-        r = fit(plain, e.name, metric="absolute", cos_weight=True, max_steps=max_steps,
-                multistart=multistart, seed=seed)
+        if "layered" in e.tags:
+            pre = fit(plain, e.name, metric=LAYERED_PREFIT_METRIC, cos_weight=True,
+                      max_steps=max_steps, multistart=max(multistart, LAYERED_STARTS),
+                      seed=seed)
+            r = fit(plain, e.name, metric="absolute", cos_weight=True, max_steps=max_steps,
+                    init=pre.params)
+        else:
+            r = fit(plain, e.name, metric="absolute", cos_weight=True, max_steps=max_steps,
+                    multistart=multistart, seed=seed)
     except (ParameterError, FitError) as exc:  # one candidate's failure loses no other
         return Candidate(
             model=e.name, params={}, stderr={}, error=float("inf"), cost_ns=float("nan"),
@@ -591,14 +533,15 @@ def select(data: GonioData, candidates: Sequence[str] | None = None, budget: flo
     out.sort(key=lambda c: (bool(c.message), cost_key.get(c.model, 0.0), c.n_params, c.error))
     ok = sorted((c for c in out if c.within_budget),
                 key=lambda c: (cost_key[c.model], c.n_params, c.error))
-    choice = None
+    choice, gave_way = None, None
     for c in ok:  # the cheapest, but an extra lobe only where the data support it
         if c.lobe_gain is not None:
             base = next(b for b in out if b.model == c.extends)
             c.lobe_gain.update(refit_lobe_test(data, c, base, n_res, max_steps))
             if not c.lobe_gain["supported"]:
                 continue
-        choice = c.model
+        ext = decisive_extension(c, ok, noise, data, n_res, max_steps)
+        choice, gave_way = (c.model, None) if ext is None else (ext.model, c)
         break
     represented = bool(best <= ceiling)
     suggestion = None
@@ -621,6 +564,12 @@ def select(data: GonioData, candidates: Sequence[str] | None = None, budget: flo
         ch = next(c for c in out if c.model == choice)
         message = (f"choice: {choice}, error {ch.error:.4g} (budget {budget:.4g}), the cheapest "
                    f"within budget by the {cost_rule.split(':')[0]} cost")
+        if gave_way is not None:
+            message = (f"choice: {choice}, error {ch.error:.4g} (budget {budget:.4g}): "
+                       f"{gave_way.model}, the cheapest within budget, leaves {gave_way.error:.4g}"
+                       f"; the extra lobe removes "
+                       f"{100 * ch.lobe_gain['fraction_removed']:.4g}% of that and passes the "
+                       "F test")
     return Selection(choice=choice, budget=float(budget), budget_rule=rule,
                      error_definition=error_definition, candidates=out, noise_level=noise,
                      n_samples=data.n, seconds=time.perf_counter() - t_start,
