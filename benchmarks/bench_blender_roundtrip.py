@@ -51,6 +51,8 @@ MATERIALS = {
                               ior=1.5),
     "coated blue": dict(base_color=[0.1, 0.2, 0.6], roughness=0.5, metallic=0.0, ior=1.5,
                         coat_weight=1.0, coat_roughness=0.1, coat_ior=1.5),
+    "coated metal": dict(base_color=[0.9, 0.55, 0.15], roughness=0.45, metallic=1.0, ior=1.5,
+                         coat_weight=1.0, coat_roughness=0.05, coat_ior=1.5),
     "sheen fabric": dict(base_color=[0.5, 0.05, 0.2], roughness=0.7, metallic=0.0, ior=1.5,
                          sheen_weight=1.0, sheen_roughness=0.3),
     "brushed metal": dict(base_color=[0.8, 0.8, 0.8], roughness=0.3, metallic=1.0, ior=1.5,

@@ -49,6 +49,8 @@ def run(args) -> int:
         check_output_file(args.mitsuba, (".xml",), "--mitsuba")
     if args.blender is not None:
         check_output_file(args.blender, (".py", ".blend"), "--blender")
+    if args.blend is not None:
+        check_output_file(args.blend, (".blend",), "--blend")
     reg = load_registry()
     names = None
     if args.candidates is not None and args.family is not None:
@@ -93,12 +95,14 @@ def run(args) -> int:
     chosen = sel.choice
     if chosen is not None:
         name = os.path.splitext(os.path.basename(args.data))[0]
-        for kind, path in (("mitsuba", args.mitsuba), ("gltf", args.gltf),
-                           ("blender", args.blender)):
+        for flag, kind, path in (("--mitsuba", "mitsuba", args.mitsuba),
+                                 ("--gltf", "gltf", args.gltf),
+                                 ("--blender", "blender", args.blender),
+                                 ("--blend", "blender", args.blend)):
             if path is not None:
                 # a Blender export that cannot be made (a .blend without Blender's Python, a
                 # choice that is no Blender entry) is reported after the selection
-                outs.write(f"--{kind}", path, lambda kind=kind, path=path: exports.append(
+                outs.write(flag, path, lambda kind=kind, path=path: exports.append(
                     write_export(kind, path, chosen, sel.candidate(chosen).params, data, name)),
                     also=(CLIError,) if kind == "blender" else ())
     doc["exports"] = exports
@@ -211,12 +215,12 @@ def _select_scene(args, names, checks) -> int:
     if args.mitsuba is not None:
         outs.write("--mitsuba", args.mitsuba,
                    lambda: sc.export_scene(res, mitsuba_path=args.mitsuba))
-    if args.blender is not None:
-        from brdf_fit.convert.blender import BlenderNotFound
+    for flag, path in (("--blender", args.blender), ("--blend", args.blend)):
+        if path is not None:
+            from brdf_fit.convert.blender import BlenderNotFound
 
-        outs.write("--blender", args.blender,
-                   lambda: sc.export_scene(res, blender_path=args.blender),
-                   also=(BlenderNotFound, RuntimeError, ValueError))
+            outs.write(flag, path, lambda path=path: sc.export_scene(res, blender_path=path),
+                       also=(BlenderNotFound, RuntimeError, ValueError))
     doc = res.to_dict()
     if args.plot is not None:
         from brdf_fit.plot import scene_front
@@ -286,6 +290,9 @@ def add_parser(sub) -> None:
                          "BSDF materials (run it in Blender), or a .blend (needs Blender's "
                          "Python: make blender); the choice must be a blender entry "
                          "(--target blender)")
+    se.add_argument("--blend", default=None, metavar="OUT.blend",
+                    help="the same materials saved in a .blend file (needs Blender's Python: "
+                         "make blender); may be given beside --blender OUT.py")
     se.add_argument("--skip-bad", action="store_true",
                     help="with --scene: list bad materials and select the others")
     se.add_argument("--candidates", default=None, metavar="A,B,...",

@@ -9,8 +9,10 @@ them far onto their plateau (their Jacobian column then vanishes and the solver'
 ~0) and the same compiled solver goes on; the result counts as converged only where the
 Karush-Kuhn-Tucker sign condition holds (:func:`inward_gradient_free`), or, failing the solver's
 own test, where :func:`converged_at_bounds` finds the other entries converged with the bound
-ones held. The chunked path has its own counterpart
-(:func:`brdf_fit.fitting.chunked.converged_at_bounds`).
+ones held. Whether or not the solver converged, an entry at a bound that the loss pulls inward
+(a start on a bound stalls there as well: the solver's step test passes in it at once) is
+released just inside (:func:`release_inward`) and the solver goes on. The chunked path has its
+own counterpart (:func:`brdf_fit.fitting.chunked.converged_at_bounds`; it releases nothing).
 """
 
 from __future__ import annotations

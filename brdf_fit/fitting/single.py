@@ -514,29 +514,30 @@ def fit(
         (u, ok, steps), loss = best
         params, se, rms, codes, finite, cov, grad = _dense_stderr(
             jitted, u, arrays, fx, n_used * C, m_eff, sandwich, p)
-        if not bool(ok) and grad is not None and layout.at_bound(params).any():
-            # an optimum on a bound (brdf_fit.fitting.bounds): the entries there are put far
-            # onto their transform's plateau (Jacobian column ~0, so the solver's step in them
-            # ~0) and the same compiled solver goes on from there; converged only where no
+        if grad is not None and layout.at_bound(params).any():
+            # an optimum on a bound (brdf_fit.fitting.bounds). Not converged: the entries there
+            # are put far onto their transform's plateau (Jacobian column ~0, so the solver's
+            # step in them ~0) and the same compiled solver goes on. Converged or not: an entry
+            # the loss pulls inward (a start on a bound stalls there: its Jacobian column is
+            # ~0 too) is released just inside and the solver goes on; converged only where no
             # bound entry would lower the loss by moving inward
-            u2 = _bounds.onto_plateau(layout, np.asarray(u), grad[0])
-            *sol2, loss2 = jitted.run(jnp.asarray(u2, dtype), arrays, fx)
-            if float(loss2) <= loss:
-                (u, ok, steps2), loss = sol2, float(loss2)
-                steps = int(steps) + int(steps2)
-                params, se, rms, codes, finite, cov, grad = _dense_stderr(
-                    jitted, u, arrays, fx, n_used * C, m_eff, sandwich, p)
-            ok = bool(ok) and _bounds.inward_gradient_free(layout, *grad)
-            u3 = None if ok else _bounds.release_inward(layout, np.asarray(u), *grad)
-            if u3 is not None:
-                # the loss pulls a bound entry inward: released just inside, the solver goes on
-                *sol3, loss3 = jitted.run(jnp.asarray(u3, dtype), arrays, fx)
-                if float(loss3) <= loss:
-                    (u, ok, steps3), loss = sol3, float(loss3)
-                    steps = int(steps) + int(steps3)
+            def again(u_new):
+                nonlocal u, ok, steps, loss, params, se, rms, codes, finite, cov, grad
+                *sol, loss_new = jitted.run(jnp.asarray(u_new, dtype), arrays, fx)
+                if float(loss_new) <= loss:
+                    (u, ok, steps_new), loss = sol, float(loss_new)
+                    steps = int(steps) + int(steps_new)
                     params, se, rms, codes, finite, cov, grad = _dense_stderr(
                         jitted, u, arrays, fx, n_used * C, m_eff, sandwich, p)
-                    ok = bool(ok) and _bounds.inward_gradient_free(layout, *grad)
+
+            if not bool(ok):
+                again(_bounds.onto_plateau(layout, np.asarray(u), grad[0]))
+            ok = bool(ok) and _bounds.inward_gradient_free(layout, *grad)
+            u_in = None if ok else _bounds.release_inward(layout, np.asarray(u), *grad)
+            if u_in is not None:
+                ok = False
+                again(u_in)
+                ok = bool(ok) and _bounds.inward_gradient_free(layout, *grad)
             if not ok:
                 ok = _bounds.converged_at_bounds(layout, *grad, rtol, atol)
     stderr, bound_names = {}, ()

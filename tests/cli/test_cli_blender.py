@@ -65,13 +65,26 @@ def test_fit_for_blender_writes_the_material_script(plastic, tmp_path, capsys):
 def test_select_for_blender_takes_no_coat_on_a_plastic(plastic, tmp_path, capsys):
     """The issue's red plastic: the Blender candidates are the base and its coated extension;
     the coat stands for nothing there and is not taken (the nested F test)."""
-    out = tmp_path / "chosen.py"
-    assert main(["select", str(plastic), "--target", "blender", "--blender", str(out),
-                 "--no-checks", "--json"]) == 0
-    doc = json.loads(capsys.readouterr().out)
+    out, blend = tmp_path / "chosen.py", tmp_path / "chosen.blend"
+    try:
+        cb.find_blender_python()
+        have_blender = True
+    except cb.BlenderNotFound:
+        have_blender = False
+    rc = main(["select", str(plastic), "--target", "blender", "--blender", str(out),
+               "--blend", str(blend), "--no-checks", "--json"])
+    captured = capsys.readouterr()
+    doc = json.loads(captured.out)
     assert doc["choice"] == "blender-principled"
-    assert [e["target"] for e in doc["exports"]] == ["blender"]
     assert _materials(out)[0]["name"] == "red_plastic"
+    if have_blender:  # --blend saves the same materials in a .blend beside the script
+        assert rc == 0, captured.err
+        assert [e["target"] for e in doc["exports"]] == ["blender", "blender"]
+        assert blend.is_file() and blend.read_bytes()[:7] == b"BLENDER"
+    else:  # the script is written, the .blend is reported as failed, the selection kept
+        assert rc == 1 and "--blend" in captured.err and "make blender" in captured.err
+        assert [e["target"] for e in doc["exports"]] == ["blender"]
+        assert not blend.exists()
 
 
 def test_a_blend_without_blender_keeps_the_fit(plastic, tmp_path, capsys, monkeypatch):

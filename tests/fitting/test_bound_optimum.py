@@ -72,3 +72,26 @@ def test_a_fit_held_on_a_bound_the_loss_leaves_inward_is_released():
     free = fit(_lambert_data(0.5), "lambert")
     assert free.converged
     np.testing.assert_allclose(np.ravel(r.params["rho"]), np.ravel(free.params["rho"]), rtol=1e-8)
+
+
+def test_a_default_start_on_a_bound_does_not_stall_there():
+    """gltf-pbr-specular starts at its default specular_factor 1, the end of its interval,
+    where the logistic's slope is ~1e-9: the solver's own test passed at once in that entry, and
+    the fit said "converged" at specular_factor 1 and roughness 0.378 for data made with 0.7 and
+    0.35 (loss 0.036, where 0 is reachable). The sign test now runs on a converged fit too: the
+    loss pulls specular_factor inward, it is released, and the fit reaches the values set."""
+    from brdf_fit import registry
+    from data_synth.plans import four_axis
+
+    plan = four_axis(theta_i_deg=(0, 20, 40, 60, 80), theta_o_deg=tuple(range(0, 81, 10)),
+                     phi_o_deg=tuple(range(0, 360, 30)))
+    wi, wo = np.asarray(plan.wi), np.asarray(plan.wo)
+    truth = {"base_color": np.array([0.7, 0.3, 0.1]), "metallic": 0.0, "roughness": 0.35,
+             "specular_factor": 0.7, "specular_color": np.array([0.9, 0.8, 0.7])}
+    value = np.asarray(registry.get("gltf-pbr-specular").build(**truth).eval(wi, wo))
+    r = fit(GonioData(wi=wi, wo=wo, value=value, channels=("R", "G", "B")),
+            "gltf-pbr-specular")
+    assert r.converged, r.message
+    assert r.loss < 1e-20, r.loss
+    np.testing.assert_allclose(r.params["roughness"], 0.35, rtol=1e-9)
+    np.testing.assert_allclose(r.params["specular_factor"], 0.7, rtol=1e-6)
