@@ -34,10 +34,11 @@ demo: $(STAMP)          ## the main job on its embedded default
 
 # the suite runs in parallel, one process per core (pytest-xdist; whole files per worker, so a
 # file's tests share their compilations; 81% of the summed test time is tracing, lowering and
-# compiling: benchmarks/results/compiles_tests.md). The default set: 7:48 for 1913 tests on 2
-# AMD EPYC cores (AVX-512) from a fresh clone of 898d200 (2026-12-07, with make blender); the
-# slow set (`test-slow`, which CI runs too): 28:30 for 1698 tests (CI in all, blender + setup +
-# test + docs + test-slow: ~40 minutes there).
+# compiling: benchmarks/results/compiles_tests.md). The default set: 5:52 for 1922 tests on 2
+# Intel Xeon cores (AVX-512) from a fresh clone of 93ec7e4 (2026-12-07, with make blender), 7:48
+# for 1913 on 2 AMD EPYC cores (898d200); the slow set (`test-slow`, which CI runs too): 18:29
+# for 1722 on the Xeon, 28:30 for 1698 on the EPYC (CI in all, blender + setup + test + docs +
+# test-slow: ~27 minutes on the Xeon, ~40 on the EPYC).
 # On an AVX2 machine, or to check a bound for one: XLA_FLAGS=--xla_cpu_max_isa=AVX2 make test
 XDIST  := -n auto --maxprocesses=4 --dist loadfile
 
