@@ -52,15 +52,14 @@ def _one_target(target: str) -> list[dict]:
 
     jax.config.update("jax_enable_x64", True)
     import numpy as np
+    from bench_blender_roundtrip import _plan  # the same 524 pairs
 
     from brdf_fit import registry
     from brdf_fit.data import GonioData
     from brdf_fit.fitting.single import fit
     from brdf_fit.selection.selector import LAYERED_STARTS
-    from data_synth.plans import four_axis
 
-    plan = four_axis(theta_i_deg=tuple(range(0, 81, 20)), theta_o_deg=tuple(range(0, 81, 10)),
-                     phi_o_deg=tuple(range(0, 360, 30)))
+    plan = _plan()
     wi, wo = np.asarray(plan.wi), np.asarray(plan.wo)
     rows = []
     for e in registry.entries():

@@ -59,23 +59,30 @@ def onto_plateau(layout, u, flat_phys):
     return np.where(bound, np.where(at_lo, -PLATEAU_U, PLATEAU_U), u)
 
 
-def inward_gradient_free(layout, flat_phys, J, r) -> bool:
-    """Whether no entry at an end of its interval would lower the loss by moving inward: the
-    physical gradient ``J^T r`` points outward there, or is orthogonal to the residual to
-    rounding (MINPACK's gtol test). The Karush-Kuhn-Tucker sign condition of a bound optimum."""
-    x = np.asarray(flat_phys, float)
-    bound = layout.at_bound(layout.split(x))
-    if not bound.any():
-        return True
+def _pulled_inward(layout, x, J, r):
+    """Per flat entry: whether it sits at an end of its interval and the loss falls by moving it
+    inward (its physical gradient ``J^T r`` points inward beyond MINPACK's gtol test of
+    orthogonality to the residual); None where ``J`` or ``r`` is not finite."""
     if not (np.all(np.isfinite(J)) and np.all(np.isfinite(r))):
-        return False
+        return None
     lo, hi = flat_bounds(layout, x.size)
     g = J.T @ r
     gtol = _lm.GTOL_SQRT_EPS * np.sqrt(np.finfo(J.dtype).eps) * np.sqrt(
         float(r @ r) * np.sum(J * J, axis=0))
     at_lo = np.abs(x - lo) <= np.abs(x - hi)
     inward_helps = np.where(at_lo, g < -gtol, g > gtol)  # d loss / dx < 0 going up from lo
-    return not bool(np.any(bound & inward_helps))
+    return layout.at_bound(layout.split(x)) & inward_helps
+
+
+def inward_gradient_free(layout, flat_phys, J, r) -> bool:
+    """Whether no entry at an end of its interval would lower the loss by moving inward: the
+    physical gradient ``J^T r`` points outward there, or is orthogonal to the residual to
+    rounding (MINPACK's gtol test). The Karush-Kuhn-Tucker sign condition of a bound optimum."""
+    x = np.asarray(flat_phys, float)
+    if not layout.at_bound(layout.split(x)).any():
+        return True
+    pulled = _pulled_inward(layout, x, J, r)
+    return pulled is not None and not bool(pulled.any())
 
 
 def release_inward(layout, u, flat_phys, J, r):
@@ -86,17 +93,11 @@ def release_inward(layout, u, flat_phys, J, r):
     float32 rendering puts the optimum 1e-5 below 1; the plateau then held it where the loss
     still fell inward and the fit said "did not converge" at the right answer."""
     x = np.asarray(flat_phys, float)
-    bound = layout.at_bound(layout.split(x))
-    if not bound.any() or not (np.all(np.isfinite(J)) and np.all(np.isfinite(r))):
+    pulled = _pulled_inward(layout, x, J, r)
+    if pulled is None or not pulled.any():
         return None
     lo, hi = flat_bounds(layout, x.size)
-    g = J.T @ r
-    gtol = _lm.GTOL_SQRT_EPS * np.sqrt(np.finfo(J.dtype).eps) * np.sqrt(
-        float(r @ r) * np.sum(J * J, axis=0))
     at_lo = np.abs(x - lo) <= np.abs(x - hi)
-    pulled = bound & np.where(at_lo, g < -gtol, g > gtol)
-    if not pulled.any():
-        return None
     width = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
     inside = np.where(at_lo, lo + RELEASE_T * width, hi - RELEASE_T * width)
     u_in = layout.inverse(layout.split(inside))
