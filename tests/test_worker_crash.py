@@ -24,10 +24,19 @@ def test_after_it():
 """
 
 CRASH_ALWAYS = """
-import os, signal
+import os, signal, pathlib
 
 def test_crashes_always():
+    (pathlib.Path(__file__).parent / "crashing_runs").open("a").write("x")
     os.kill(os.getpid(), signal.SIGSEGV)
+"""
+
+QUICK = """
+import time, pytest
+
+@pytest.mark.parametrize("k", range(4))
+def test_quick(k):
+    time.sleep(0.02)
 """
 
 FAILS = """
@@ -39,11 +48,11 @@ def test_fails():
 """
 
 
-def _pytest(folder: Path, *files: str) -> subprocess.CompletedProcess:
+def _pytest(folder: Path, *files: str, timeout: float = 300) -> subprocess.CompletedProcess:
     return subprocess.run(
         [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-n", "2",
          "--dist", "loadfile", "--max-worker-restart", "2", "-o", "addopts=", *files],
-        cwd=folder, capture_output=True, text=True, timeout=300)
+        cwd=folder, capture_output=True, text=True, timeout=timeout)
 
 
 @pytest.mark.slow
@@ -63,6 +72,22 @@ def test_a_crash_runs_again_once_and_a_failure_never(tmp_path):
     always = _pytest(tmp_path, "test_crash_always.py")
     assert always.returncode == 1, always.stdout[-3000:]
     assert "FAILED test_crash_always.py::test_crashes_always" in always.stdout
+    # run once and once again, not until --max-worker-restart is spent
+    assert (tmp_path / "crashing_runs").read_text() == "xx"
     fails = _pytest(tmp_path, "test_fails.py")
     assert fails.returncode == 1 and "rerun" not in fails.stdout, fails.stdout[-3000:]
     assert (tmp_path / "failed_runs").read_text() == "x"
+
+
+@pytest.mark.slow
+def test_a_crash_in_a_long_run_does_not_hang_it(tmp_path):
+    """pytest-xdist 3.8.0 puts every file a dead worker had finished back on the queue; each then
+    reaches a worker as an empty command that is never answered, and the run hangs with idle
+    workers (two slow runs of this suite did, issue 41). Without the conftest's scheduler this
+    folder (a crash in the 15th of 30 files) hangs until the time-out; with it the run ends."""
+    shutil.copy(Path(__file__).with_name("conftest.py"), tmp_path / "conftest.py")
+    for k in range(30):
+        (tmp_path / f"test_{k:02d}.py").write_text(CRASH_ONCE if k == 15 else QUICK)
+    run = _pytest(tmp_path, timeout=120)
+    assert run.returncode == 0, run.stdout[-3000:]
+    assert "118 passed, 1 rerun" in run.stdout, run.stdout[-3000:]
