@@ -1,7 +1,10 @@
-"""One self-contained HTML page for a fit (``brdf-fit fit --report out.html``, issue 46): the
+"""Self-contained HTML pages (issue 46). For a fit (``brdf-fit fit --report out.html``): the
 parameters with their 95% intervals, where the misfit is, the fit rendered (and dense data
 rendered from themselves beside it, with FLIP between the two), the data against the fit as
-slices, and the command and version that produced it.
+slices, and the command and version that produced it. For a selection (``brdf-fit select
+--report out.html``): the choice and why, every candidate's error and cost, speed against error
+as a picture with the Pareto front, the chosen and the most accurate candidates rendered and
+against the data, the exports.
 
 Every figure is a PNG inside the page (``data:`` URIs), so the file opens anywhere without the
 network; the page has no script and reads as plain HTML (inline CSS for the tables only).
@@ -19,7 +22,7 @@ import numpy as np
 
 from brdf_fit._version import __version__
 
-__all__ = ["REPORT_SPHERE_SIZE", "fit_report"]
+__all__ = ["REPORT_SPHERE_SIZE", "fit_report", "select_report"]
 
 #: side in pixels of the rendered spheres in a report
 REPORT_SPHERE_SIZE = 256
@@ -115,43 +118,12 @@ def fit_report(result, data, *, source: str, command: str, table=None,
     ``flip-evaluator`` is installed), and their Rusinkiewicz slice is drawn. ``export``: the
     fit's ``--export`` answer, shown as written. ``command``: the command line, shown as
     given."""
-    from brdf_fit import plot, render
 
     regions = result.regions if result.regions is not None else result.residuals_by_region(data)
     label = f"{result.model_name} (fit)"
     parts = []
-    sphere = render.render_sphere(result.model, REPORT_SPHERE_SIZE)
-    figures = [_img(_pixels_png(render.srgb_8bit(sphere.radiance)), "the fit, rendered",
-                    f"{result.model_name} as fitted: a sphere under a directional light at 45 "
-                    "degrees, irradiance pi, sRGB, exposure 0 (brdf-fit render)")]
-    flip_line = ""
-    if table is not None:
-        measured = render.render_sphere(render.MerlTable(table), REPORT_SPHERE_SIZE)
-        figures.insert(0, _img(_pixels_png(render.srgb_8bit(measured.radiance)),
-                               "the data, rendered",
-                               "the data rendered from themselves (trilinear between the MERL "
-                               "bin centres), the same light"))
-        try:
-            emap, mean = render.flip_error(measured, sphere)
-            figures.append(_img(_pixels_png(render.error_map_8bit(emap)), "FLIP error map",
-                                f"NVIDIA FLIP, data to fit (magma: black 0, yellow 1); mean "
-                                f"over the sphere {mean:.4g}"))
-            flip_line = f"<p>FLIP between the data and the fit, mean over the sphere: " \
-                        f"<b>{mean:.4g}</b> (0 identical; below 0.01 hard to tell apart).</p>"
-        except ImportError as e:
-            flip_line = f"<p>No FLIP difference: {html.escape(str(e))}.</p>"
-    else:
-        figures.append("<p>Sparse data (a gonioreflectometer file) cannot be rendered from "
-                       "themselves: only the fit is.</p>")
-    slices = [_img(_figure_png(plot.in_plane_slices(data, [(label, result.model)],
-                                                    (0.0, 30.0, 60.0))),
-                   "in-plane slices", "data and fit in the plane of incidence"),
-              _img(_figure_png(plot.residuals(data, [(label, result.model)])),
-                   "residuals", "ln(fit / data) per sample against the half-vector angle")]
-    if table is not None:
-        slices.append(_img(_figure_png(plot.rusinkiewicz_slice(table, [(label, result.model)])),
-                           "Rusinkiewicz slice",
-                           "the phi_d = 90 degree slice of data and fit, and their log ratio"))
+    flip_line, figures = _rendered([(result.model_name, result.model)], table)
+    slices = _slices(data, [(label, result.model)], table)
 
     status = ("converged" if result.converged
               else f'<span class="bad">not converged</span>: {html.escape(result.message)}')
@@ -182,11 +154,170 @@ def fit_report(result, data, *, source: str, command: str, table=None,
             f"to {export.get('path', '')}") + "</p>")
         if export.get("text"):
             parts.append(f"<pre>{html.escape(export['text'])}</pre>")
+    return _page(f"{result.model_name}: {source}", parts, command)
+
+
+def _rendered(models, table) -> tuple[str, list[str]]:
+    """``(FLIP line, figures)``: each ``(name, model)`` rendered as a sphere; for dense MERL
+    data (``table``) the data rendered from themselves first, and FLIP from the data to the
+    first model."""
+    from brdf_fit import render
+
+    spheres = [render.render_sphere(m, REPORT_SPHERE_SIZE) for _, m in models]
+    figures = [_img(_pixels_png(render.srgb_8bit(sp.radiance)), f"{name}, rendered",
+                    f"{name} as fitted: a sphere under a directional light at 45 degrees, "
+                    "irradiance pi, sRGB, exposure 0 (brdf-fit render)")
+               for (name, _), sp in zip(models, spheres, strict=True)]
+    flip_line = ""
+    if table is not None:
+        measured = render.render_sphere(render.MerlTable(table), REPORT_SPHERE_SIZE)
+        figures.insert(0, _img(_pixels_png(render.srgb_8bit(measured.radiance)),
+                               "the data, rendered",
+                               "the data rendered from themselves (trilinear between the MERL "
+                               "bin centres), the same light"))
+        try:
+            emap, mean = render.flip_error(measured, spheres[0])
+            figures.append(_img(_pixels_png(render.error_map_8bit(emap)), "FLIP error map",
+                                f"NVIDIA FLIP, data to {models[0][0]} (magma: black 0, yellow "
+                                f"1); mean over the sphere {mean:.4g}"))
+            flip_line = (f"<p>FLIP between the data and {html.escape(models[0][0])}, mean over "
+                         f"the sphere: <b>{mean:.4g}</b> (0 identical; below 0.01 hard to tell "
+                         "apart).</p>")
+        except ImportError as e:
+            flip_line = f"<p>No FLIP difference: {html.escape(str(e))}.</p>"
+    else:
+        figures.append("<p>Sparse data (a gonioreflectometer file) cannot be rendered from "
+                       "themselves: only the fit is.</p>")
+    return flip_line, figures
+
+
+def _slices(data, models, table) -> list[str]:
+    """In-plane slices and residuals of the data against ``models`` (``(label, model)``); the
+    Rusinkiewicz slice for dense MERL data (``table``)."""
+    from brdf_fit import plot
+
+    out = [_img(_figure_png(plot.in_plane_slices(data, models, (0.0, 30.0, 60.0))),
+                "in-plane slices", "data and fit in the plane of incidence"),
+           _img(_figure_png(plot.residuals(data, models)),
+                "residuals", "ln(fit / data) per sample against the half-vector angle")]
+    if table is not None:
+        out.append(_img(_figure_png(plot.rusinkiewicz_slice(table, models)),
+                        "Rusinkiewicz slice",
+                        "the phi_d = 90 degree slice of data and fit, and their log ratio"))
+    return out
+
+
+def _page(title: str, parts: list[str], command: str) -> str:
+    """The whole document: ``parts`` and the provenance (command, version, machine, time)."""
     when = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
-    parts.append(f"<h2>Provenance</h2><p><code>{html.escape(command)}</code></p><p>brdf_fit "
-                 f"{html.escape(__version__)}, Python {platform.python_version()}, "
-                 f"{html.escape(platform.platform())}, {when}.</p>")
+    parts = [*parts, f"<h2>Provenance</h2><p><code>{html.escape(command)}</code></p><p>"
+             f"brdf_fit {html.escape(__version__)}, Python {platform.python_version()}, "
+             f"{html.escape(platform.platform())}, {when}.</p>"]
     return ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
-            f"<title>{html.escape(result.model_name)}: {html.escape(source)}</title>"
-            f"<style>{_STYLE}</style></head><body>\n" + "\n".join(parts)
-            + "\n</body></html>\n")
+            f"<title>{html.escape(title)}</title><style>{_STYLE}</style></head><body>\n"
+            + "\n".join(parts) + "\n</body></html>\n")
+
+
+def _candidate_parameter_rows(c, channels) -> list[str]:
+    """Value, standard error and 95% interval of a selection candidate's parameters."""
+    rows = []
+    for name, value in c.params.items():
+        v = np.atleast_1d(np.asarray(value, float))
+        se = c.stderr.get(name)
+        se = None if se is None else np.atleast_1d(np.asarray(se, float))
+        for j, x in enumerate(v):
+            label = name if v.size == 1 else (
+                f"{name}[{channels[j]}]" if len(channels) == v.size else f"{name}[{j}]")
+            if se is None or not np.isfinite(se[j]):
+                cells = ["undefined", ""]
+            else:
+                cells = [_num(se[j], 3),
+                         f"[{_num(x - Z95 * se[j])}, {_num(x + Z95 * se[j])}]"]
+            note = "undetermined" if name in c.undetermined or label in c.undetermined else ""
+            cls = ' class="bad"' if note else ""
+            rows.append(f"<tr><td>{html.escape(label)}</td><td>{_num(x)}</td><td>{cells[0]}"
+                        f"</td><td>{cells[1]}</td><td{cls}>{note}</td></tr>")
+    return rows
+
+
+def _candidate_rows(selection) -> list[str]:
+    rows = []
+    for c in sorted(selection.candidates, key=lambda c: (bool(c.message), c.cost_ns)):
+        if c.message:
+            rows.append(f"<tr><td>{html.escape(c.model)}</td><td colspan=\"7\" "
+                        f"class=\"bad\">{html.escape(c.message)}</td></tr>")
+            continue
+        mark = " <b>(choice)</b>" if c.model == selection.choice else ""
+        gain = ""
+        if c.lobe_gain:
+            g = c.lobe_gain
+            gain = (f"{100 * g['fraction_removed']:.1f}% of {html.escape(g['base'])}'s error"
+                    + ("" if "supported" not in g else
+                       ("; lobe supported" if g["supported"] else "; lobe not supported")))
+        cost = "n/a" if c.cost_rel is None else f"{c.cost_rel:.3g}"
+        within = "yes" if c.within_budget else '<span class="bad">no</span>'
+        conv = "yes" if c.converged else '<span class="bad">no</span>'
+        rows.append(f"<tr><td>{html.escape(c.model)}{mark}</td><td>{_num(c.error, 4)}</td>"
+                    f"<td>{within}</td><td>{cost}</td><td>{_num(c.cost_ns, 3)}</td>"
+                    f"<td>{'yes' if c.pareto else ''}</td><td>{conv}</td><td>{gain}</td></tr>")
+    return rows
+
+
+#: candidates drawn against the data besides the choice: the most accurate ones
+SELECT_REPORT_MODELS = 3
+
+
+def select_report(selection, data, *, source: str, command: str, table=None,
+                  exports=()) -> str:
+    """The HTML page of ``selection`` (:class:`~brdf_fit.selection.Selection`) made from
+    ``data`` read from ``source``: the choice and the rules that made it, every candidate
+    (error, within the budget, committed and live cost, on the Pareto front, converged, what
+    an extra lobe removes), error against cost with the front and the choice ringed, the
+    choice's parameters with their 95% intervals, the choice and the most accurate candidates
+    rendered (dense MERL data, ``table``: the data too, with FLIP to the choice) and against
+    the data. ``exports``: the command's written exports (their ``to_dict`` answers)."""
+    from brdf_fit import plot
+
+    fitted = sorted((c for c in selection.candidates if not c.message and c.fitted is not None),
+                    key=lambda c: c.error)
+    shown = ([selection.candidate(selection.choice)] if selection.choice is not None else [])
+    shown += [c for c in fitted if c not in shown][:SELECT_REPORT_MODELS - len(shown)]
+    parts = [f"<h1>Model selection for {html.escape(source)}</h1>"]
+    parts.append(f"<p>{data.n} samples x {data.n_channels} channel(s) "
+                 f"({html.escape(', '.join(data.channels))}). Error: "
+                 f"{html.escape(selection.error_definition)}. Budget {_num(selection.budget, 4)}"
+                 f" ({html.escape(selection.budget_rule)}). Cost: "
+                 f"{html.escape(selection.cost_rule)}."
+                 + (f" Target: {html.escape(selection.target)} (every candidate is written to "
+                    "it as fitted)." if selection.target else "") + "</p>")
+    if selection.choice is None:
+        parts.append(f'<p class="bad">{html.escape(selection.message)}</p>')
+    else:
+        parts.append(f"<p><b>Choice: {html.escape(selection.choice)}</b>. "
+                     f"{html.escape(selection.message)}</p>")
+    parts.append("<h2>Candidates</h2><table><tr><th>model</th><th>error</th>"
+                 "<th>within budget</th><th>cost (x Lambert)</th><th>ns per evaluation</th>"
+                 "<th>Pareto front</th><th>converged</th><th>extra lobe removes</th></tr>"
+                 + "".join(_candidate_rows(selection)) + "</table>")
+    parts.append("<h2>Speed against error</h2>" + _img(
+        _figure_png(plot.selection_front(selection, title=source)), "speed against error",
+        "relative RMS radiance error against evaluation cost; the Pareto front joined, the "
+        "budget dashed, the choice ringed"))
+    if selection.choice is not None:
+        c = selection.candidate(selection.choice)
+        parts.append("<h2>The choice's parameters</h2><table><tr><th>parameter</th>"
+                     "<th>value</th><th>standard error</th><th>95% interval</th><th>note</th>"
+                     "</tr>" + "".join(_candidate_parameter_rows(c, tuple(data.channels)))
+                     + "</table>")
+    if shown:
+        models = [(c.model, c.fitted) for c in shown]
+        flip_line, figures = _rendered(models, table)
+        parts.append("<h2>Rendered</h2>" + flip_line + "".join(figures))
+        parts.append("<h2>Data and candidates</h2>" + "".join(_slices(data, models, table)))
+    if exports:
+        parts.append("<h2>Exports</h2><ul>" + "".join(
+            "<li>" + html.escape(f"{e.get('target')} ({e.get('method')}): written to "
+                                 f"{e.get('path')}" + ("" if e.get("error") is None else
+                                                       f"; round-trip error {e['error']:.3g}"))
+            + "</li>" for e in exports) + "</ul>")
+    return _page(f"selection: {source}", parts, command)

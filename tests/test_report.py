@@ -161,3 +161,46 @@ def test_report_opens_in_a_browser(merl_report, tmp_path):
     black = lambda a: int((a.max(-1) < 0.03).sum())  # noqa: E731
     assert black(shot) > 3 * 20_000 and black(bare_shot) < 1_000, (black(shot),
                                                                     black(bare_shot))
+
+
+# ----------------------------------------------------------------------------- select --report
+
+
+def test_report_of_a_selection(tmp_path, capsys):
+    """``select --report``: the candidates' table holds the selection's own errors and the
+    choice; speed against error, the choice and the next most accurate candidates rendered,
+    in-plane slices and residuals; no script, no outside reference; the command on the page."""
+    out = tmp_path / "s.html"
+    rc = main(["select", str(GOLD), "--candidates", "lambert,ggx,beckmann,ggx-conductor",
+               "--no-checks", "--quiet", "--json", "--report", str(out)])
+    doc = json.loads(capsys.readouterr().out)
+    assert rc == 0 and doc["report"] == str(out)
+    text = out.read_text(encoding="utf-8")
+    page = _Page()
+    page.feed(text)
+    assert page.scripts == 0 and page.links == []
+    # the front, three spheres (the choice and the two most accurate others), slices, residuals
+    assert len(page.images) == 6
+    for src in page.images:
+        img = _decoded(src)
+        assert img.ndim == 3 and img.shape[0] > 50 and img[..., :3].std() > 0.01
+    for c in doc["candidates"]:
+        k = page.cells.index(c["model"] + (" (choice)" if c["model"] == doc["choice"] else ""))
+        assert page.cells[k + 1] == _num(c["error"], 4)
+        assert page.cells[k + 2] == ("yes" if c["within_budget"] else "no")
+    assert f"Choice: {doc['choice']}" in text
+    chosen = next(c for c in doc["candidates"] if c["model"] == doc["choice"])
+    for name, value in chosen["params"].items():
+        if np.ndim(value) == 0:
+            k = page.cells.index(name)
+            assert page.cells[k + 1] == _num(value)
+    assert f"brdf-fit select {GOLD} --candidates" in text
+
+
+def test_select_report_is_checked_before_the_fits(tmp_path, capsys):
+    assert main(["select", str(GOLD), "--candidates", "lambert", "--report",
+                 str(tmp_path / "s.txt")]) == 2
+    assert "--report expects .html" in capsys.readouterr().err
+    assert main(["select", "--scene", "example", "--report", str(tmp_path / "s.html")]) == 2
+    assert "--report is the page of one data file's selection" in capsys.readouterr().err
+    assert not (tmp_path / "s.html").exists()

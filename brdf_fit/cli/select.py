@@ -35,6 +35,11 @@ def run(args) -> int:
                         ("--skip-bad", args.skip_bad or None)):
             if v is not None:
                 raise CLIError(f"{flag} needs --scene")
+    if args.report is not None:
+        if args.scene is not None:
+            raise CLIError("--report is the page of one data file's selection; a scene "
+                           "writes its table and figure (--plot)")
+        check_output_file(args.report, (".html",), "--report")
     if args.ceiling is not None and not args.ceiling > 0:
         raise CLIError(f"--ceiling must be a positive number (or inf), got {args.ceiling}")
     if args.target is not None:
@@ -106,6 +111,9 @@ def run(args) -> int:
                     write_export(kind, path, chosen, sel.candidate(chosen).params, data, name)),
                     also=(CLIError,) if kind == "blender" else ())
     doc["exports"] = exports
+    if args.report is not None and outs.write(
+            "--report", args.report, lambda: _write_report(args, sel, data, exports)):
+        doc["report"] = args.report
     status = 0 if sel.choice is not None and sel.represented else 1
     if args.json:
         print(json.dumps(outs.annotate(doc), indent=2, allow_nan=False))
@@ -134,7 +142,29 @@ def run(args) -> int:
               + f"; wrote {ex['path']}")
     if "plot" in doc:
         print(f"wrote {args.plot}")
+    if "report" in doc:
+        print(f"wrote {args.report}")
     return outs.status(status)
+
+
+def _write_report(args, sel, data, exports) -> None:
+    """``--report``: the selection's HTML page (:func:`brdf_fit.report.select_report`), whole
+    or not at all; a MERL file's dense table is read again for its renders and slice."""
+    import shlex
+    import sys
+
+    from brdf_fit.core.atomic import write_text_atomic
+    from brdf_fit.report import select_report
+
+    table = None
+    if data.metadata.get("format") == "merl":
+        from brdf_fit.io.merl import read_merl_table
+
+        table = read_merl_table(args.data)
+    argv = args._argv if getattr(args, "_argv", None) is not None else sys.argv[1:]
+    page = select_report(sel, data, source=args.data, table=table, exports=exports,
+                         command=shlex.join(["brdf-fit", *argv]))
+    write_text_atomic(args.report, page)
 
 
 def _cost_txt(c) -> str:
@@ -321,6 +351,10 @@ def add_parser(sub) -> None:
     se.add_argument("--no-checks", action="store_true", help="run no checks")
     se.add_argument("--plot", default=None, metavar="PNG",
                     help="error against cost, the budget line and the choice")
+    se.add_argument("--report", default=None, metavar="OUT.html",
+                    help="one self-contained HTML page of the selection: every candidate, "
+                         "speed against error, the choice rendered and against the data "
+                         "(one data file, not --scene)")
     se.add_argument("--json", action="store_true", help="machine-readable result")
     se.add_argument("--quiet", action="store_true", help="no progress bar")
     se.set_defaults(func=run)
