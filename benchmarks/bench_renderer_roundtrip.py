@@ -3,11 +3,14 @@ Mitsuba, exported, and evaluated in Mitsuba again.
 
     python benchmarks/bench_renderer_roundtrip.py [--target mitsuba] [--out DIR]
 
-1. The four recipes of ``examples/renderer/`` (gold GGX conductor, copper Beckmann conductor,
-   Mitsuba's own ``roughplastic``, brushed (anisotropic) aluminium) are rendered by Mitsuba 3's
-   ``BSDF.eval`` (``scalar_rgb``) on a four-axis gonioreflectometer plan: 2,853 samples each,
-   noise-free.
-2. One scene file lists the four data files; ``brdf-fit select --scene S --target mitsuba
+1. The nine recipes of ``examples/renderer/`` (gold GGX conductor, copper Beckmann conductor,
+   Mitsuba's own ``roughplastic``, brushed (anisotropic) aluminium, and five ``principled``
+   materials: a plastic, the same with a clearcoat, a rough blue with sheen, a dielectric with
+   tinted specular, a brushed metal) are rendered by
+   Mitsuba 3's ``BSDF.eval`` (``scalar_rgb``) on a four-axis gonioreflectometer plan: 2,853
+   samples each, noise-free (``--noise SIGMA``: with multiplicative lognormal noise, the files
+   carrying sigma, and each export compared with the noise-free render too).
+2. One scene file lists the nine data files; ``brdf-fit select --scene S --target mitsuba
    --mitsuba S.xml --gltf S.gltf --json`` runs in a fresh process (timed), exactly as a user
    runs it (``--target ''`` runs it without a target: the package's default candidates), with
    an empty compilation cache of its own (``BRDF_FIT_CACHE_DIR``), as on a first run.
@@ -43,7 +46,8 @@ from bench_eval import _loadavg, machine_info  # noqa: E402
 
 from data_synth.recipes import synthesize  # noqa: E402
 
-RECIPES = ("gold_ggx", "copper_beckmann", "plastic_ggx", "aluminium_aniso")
+RECIPES = ("gold_ggx", "copper_beckmann", "plastic_ggx", "aluminium_aniso", "principled_plastic",
+           "principled_clearcoat", "principled_sheen", "principled_tinted", "principled_brushed")
 
 
 def _mitsuba_errors(xml_path: Path, datas: dict) -> dict:
@@ -102,14 +106,24 @@ def main(argv=None) -> int:
     ap.add_argument("--target", default="mitsuba", help="mitsuba (default), gltf, or '' (none)")
     ap.add_argument("--out", default=str(Path(__file__).resolve().parent / "results"))
     ap.add_argument("--name", default="renderer_roundtrip")
+    ap.add_argument("--noise", type=float, default=0.0, metavar="SIGMA",
+                    help="multiplicative lognormal noise on every file (0.02 = 2%%; the files "
+                         "then carry sigma, and each export is also compared with the "
+                         "noise-free render)")
     args = ap.parse_args(argv)
     info = machine_info()
+    import tomllib
+
     from brdf_fit import io
 
     work = Path(tempfile.mkdtemp(prefix="brdf_rt_"))
-    datas = {}
+    datas, clean = {}, {}
     for r in RECIPES:
-        d = synthesize(str(ROOT / "examples" / "renderer" / f"{r}.toml"))
+        recipe = tomllib.loads((ROOT / "examples" / "renderer" / f"{r}.toml").read_text())
+        clean[r] = synthesize(recipe)
+        if args.noise > 0:
+            recipe["noise"] = [{"type": "lognormal", "args": {"sigma": args.noise}}]
+        d = synthesize(recipe)
         io.write(d, str(work / f"{r}.csv"))
         datas[r] = d
     scene = work / "scene.toml"
@@ -131,18 +145,25 @@ def main(argv=None) -> int:
     doc = json.loads(proc.stdout)
     ET.parse(xml_path)  # raises when not well-formed
     errors = _mitsuba_errors(xml_path, datas)
+    errors_clean = _mitsuba_errors(xml_path, clean) if args.noise > 0 else {}
     gl = validate_gltf(gltf_path)
     rows = []
     for m in doc["materials"]:
         sel = m["selection"]
         ex = m["exports"].get("mitsuba", {})
+        # an extension chosen (a lobe over its base): the base's own error on the same data
+        by_model = {c["model"]: c for c in sel["candidates"]}
+        gain = (by_model.get(m["model"]) or {}).get("lobe_gain") or {}
+        base = by_model.get(gain.get("base"), {})
         rows.append({
+            "base": base.get("model"), "base_error": base.get("error"),
             "material": m["name"], "choice": m["model"], "represented": sel["represented"],
             "fit_error": m["error"], "budget": m["budget"],
             "anisotropy": (sel["anisotropy"] or {}).get("statistic"),
             "anisotropic_choice": "aniso" in (m["model"] or ""),
             "export_method": ex.get("method"), "export_roundtrip": ex.get("error"),
             "mitsuba_vs_data": errors.get(m["name"]),
+            "mitsuba_vs_noise_free": errors_clean.get(m["name"]),
             "gltf": m["exports"].get("gltf", {}),
         })
     seconds: dict = {}
@@ -171,17 +192,23 @@ def main(argv=None) -> int:
              f"in a fresh process with an empty compilation cache: {wall:.1f} s wall, exit "
              f"status {proc.returncode}; the XML "
              f"parses with xml.etree; glTF: {gl.get('validator')}: {gl.get('numErrors')} "
-             f"errors, {gl.get('numWarnings')} warnings.", "",
-             "| material | chosen | represented | fit error | anisotropy statistic | export "
-             "| export round trip | exported bsdf in Mitsuba vs the data |",
-             "|---|---|---|---:|---:|---|---:|---:|"]
+             f"errors, {gl.get('numWarnings')} warnings."
+             + (f" Noise: multiplicative lognormal, sigma {args.noise:g}, on every file (the "
+                "files carry sigma)." if args.noise > 0 else ""), "",
+             "| material | chosen | represented | fit error | its base's error | anisotropy "
+             "statistic | export | export round trip | exported bsdf in Mitsuba vs the data |"
+             + (" ... vs the noise-free render |" if args.noise > 0 else ""),
+             "|---|---|---|---:|---:|---:|---|---:|---:|" + ("---:|" if args.noise > 0 else "")]
     for r in rows:
         def f(x):
             return "-" if x is None else f"{x:.3g}"
+        base = "-" if r["base"] is None else f"{f(r['base_error'])} ({r['base']})"
         lines.append(f"| {r['material']} | {r['choice']} | {r['represented']} | "
-                     f"{f(r['fit_error'])} | {f(r['anisotropy'])} | {r['export_method']} | "
-                     f"{f(r['export_roundtrip'])} | {f(r['mitsuba_vs_data'])} |")
-    lines += ["", "Seconds per candidate over the four materials (fit, checks, cost; the "
+                     f"{f(r['fit_error'])} | {base} | {f(r['anisotropy'])} | "
+                     f"{r['export_method']} | {f(r['export_roundtrip'])} | "
+                     f"{f(r['mitsuba_vs_data'])} |"
+                     + (f" {f(r['mitsuba_vs_noise_free'])} |" if args.noise > 0 else ""))
+    lines += ["", "Seconds per candidate over the materials (fit, checks, cost; the "
               "first material of each candidate compiles its programs):", "",
               "| candidate | seconds |", "|---|---:|"]
     lines += [f"| {k} | {v:.1f} |" for k, v in sorted(seconds.items(), key=lambda kv: -kv[1])]

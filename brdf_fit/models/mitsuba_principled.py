@@ -466,15 +466,28 @@ def _param(name: str) -> Param:
     return Param(name, default, lo=0.0, hi=1.0, channels=channels, doc=doc)
 
 
-#: The registry entries' parameters. ``spec_tint`` and ``sheen_tint`` are not among them: their
-#: tint ``base_color / luminance(base_color)`` couples the colour channels (a channel's value
-#: depends on the other channels' base_color), which the batch fitter's one-tangent-per-channel
-#: Jacobian and the pseudo-channel grid guess assume never happens (the registry-wide test
-#: ``test_structured_jacobian_matches_jacfwd`` measured 5.8e-11 against its 1e-12 bar even
-#: with spec_tint near 0). The class models both (parity-tested); fit a built model to use them.
+#: The registry entries' parameters. ``sheen_tint`` is not among them, and ``spec_tint`` only in
+#: ``mitsuba-principled-tinted``: their tint ``base_color / luminance(base_color)`` couples the
+#: colour channels (a channel's value depends on the other channels' base_color), which the
+#: fitters' one-tangent-per-channel Jacobian and the pseudo-channel grid guess assume never
+#: happens unless the entry declares it (``Entry.channels_coupled``: the registry-wide test
+#: ``test_structured_jacobian_matches_jacfwd`` measured 5.8e-11 against its 1e-12 bar with
+#: spec_tint near 0 in an entry that did not). The class models both (parity-tested).
 _BASIC = ("base_color", "roughness", "metallic", "specular")
 _ANISO = _BASIC + ("anisotropic",)
 _FULL = _ANISO + ("sheen", "clearcoat", "clearcoat_gloss", "flatness")
+#: the base with one of Mitsuba's added lobes (issue 40): a selection for Mitsuba offers them
+#: as the base's extensions, so that a clearcoated or sheened principled material comes back as
+#: one, with the lobe's own parameters, instead of as the base or the nine-parameter full entry
+_CLEARCOAT = _BASIC + ("clearcoat", "clearcoat_gloss")
+_SHEEN = _BASIC + ("sheen",)
+#: the base with its dielectric specular tinted toward the base colour; the tint's luminance
+#: normalisation couples the channels, so the entry says so (Entry.channels_coupled) and the
+#: fitters take base_color entry by entry (a dielectric with spec_tint 0.6 came back as the base
+#: at 1.8% error without it: benchmarks/results/renderer_roundtrip.md)
+_TINTED = _BASIC + ("spec_tint",)
+_TINT_COUPLED = ("spec_tint tints the specular by base_color / luminance(base_color): a "
+                 "channel's value reads the other channels' base_color")
 
 
 def _builder(**params):
@@ -512,9 +525,12 @@ _NATIVE = {"target": "mitsuba", "native_export": to_mitsuba_dict}
 def registry_entries():
     """:class:`~brdf_fit.core.params.Entry` objects of Mitsuba's ``principled`` (not registered
     here): ``mitsuba-principled`` (base_color, roughness, metallic, specular),
-    ``mitsuba-principled-aniso`` (+ anisotropic) and ``mitsuba-principled-full`` (+ sheen,
-    clearcoat, clearcoat_gloss, flatness); defaults are Mitsuba's. The tints are left out
-    (``_BASIC``: they couple the channels)."""
+    ``mitsuba-principled-aniso`` (+ anisotropic), ``mitsuba-principled-clearcoat`` (+
+    clearcoat, clearcoat_gloss), ``mitsuba-principled-sheen`` (+ sheen),
+    ``mitsuba-principled-tinted`` (+ spec_tint; its channels coupled) and
+    ``mitsuba-principled-full`` (+ anisotropic, sheen, clearcoat, clearcoat_gloss, flatness);
+    defaults are Mitsuba's. ``sheen_tint`` is left out (it couples the channels, and no
+    entry needs it yet)."""
     reference = f"{_REF_MITSUBA}; {_REF_BURLEY_2012}; {_REF_BURLEY_2015}"
     sampler = ("Mitsuba's: cosine / GGX visible normals / GTR1 normals by its lobe "
                "probabilities, exact mixture pdf")
@@ -537,6 +553,32 @@ def registry_entries():
             params=tuple(_param(n) for n in _ANISO),
             description="mitsuba-principled with Mitsuba's anisotropic GGX widths",
             tags=("native", "mitsuba", "anisotropic"),
+            **common,
+        ),
+        Entry(
+            name="mitsuba-principled-clearcoat",
+            builder=_builder,
+            params=tuple(_param(n) for n in _CLEARCOAT),
+            description=("mitsuba-principled with Mitsuba's clearcoat (GTR1 lobe, F0 0.04, no "
+                         "1/(4 ci co)) on top"),
+            tags=("native", "mitsuba", "layered"),
+            **common,
+        ),
+        Entry(
+            name="mitsuba-principled-sheen",
+            builder=_builder,
+            params=tuple(_param(n) for n in _SHEEN),
+            description="mitsuba-principled with Mitsuba's untinted sheen lobe",
+            tags=("native", "mitsuba", "layered"),
+            **common,
+        ),
+        Entry(
+            name="mitsuba-principled-tinted",
+            builder=_builder,
+            params=tuple(_param(n) for n in _TINTED),
+            description="mitsuba-principled with its dielectric specular tinted (spec_tint)",
+            tags=("native", "mitsuba"),
+            channels_coupled=_TINT_COUPLED,
             **common,
         ),
         Entry(

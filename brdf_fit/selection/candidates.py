@@ -49,7 +49,8 @@ TARGETS = ("mitsuba", "gltf", "blender")
 TARGET_CANDIDATES = {
     "mitsuba": ("lambert", "mitsuba-roughconductor", "mitsuba-roughconductor-beckmann",
                 "mitsuba-roughplastic", "mitsuba-roughplastic-beckmann",
-                "mitsuba-principled"),
+                "mitsuba-principled", "mitsuba-principled-clearcoat",
+                "mitsuba-principled-sheen", "mitsuba-principled-tinted"),
     "gltf": ("lambert", "gltf-pbr", "gltf-pbr-specular", "gltf-pbr-clearcoat",
              "gltf-pbr-sheen"),
     "blender": ("blender-principled", "blender-principled-coat", "blender-principled-sheen"),

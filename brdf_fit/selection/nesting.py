@@ -77,6 +77,10 @@ NESTED: dict[str, tuple[str, dict]] = {
     "gltf-pbr-anisotropy": ("gltf-pbr", {"anisotropy_strength": 0.0,
                                          "anisotropy_rotation": 0.0}),
     "mitsuba-principled-aniso": ("mitsuba-principled", {"anisotropic": 0.0}),
+    "mitsuba-principled-clearcoat": ("mitsuba-principled", {"clearcoat": 0.0,
+                                                             "clearcoat_gloss": 0.0}),
+    "mitsuba-principled-sheen": ("mitsuba-principled", {"sheen": 0.0}),
+    "mitsuba-principled-tinted": ("mitsuba-principled", {"spec_tint": 0.0}),
     "mitsuba-principled-full": ("mitsuba-principled", {
         "anisotropic": 0.0, "sheen": 0.0, "clearcoat": 0.0, "clearcoat_gloss": 0.0,
         "flatness": 0.0}),
