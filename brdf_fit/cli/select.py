@@ -3,7 +3,6 @@ file or every material of a scene (``--scene``)."""
 
 from __future__ import annotations
 
-import json
 import math
 import os
 
@@ -15,6 +14,7 @@ from brdf_fit.cli._common import (
     load_registry,
     read_data,
     short_params,
+    strict_json,
     use_x64,
 )
 from brdf_fit.cli._export import write_export
@@ -116,7 +116,7 @@ def run(args) -> int:
         doc["report"] = args.report
     status = 0 if sel.choice is not None and sel.represented else 1
     if args.json:
-        print(json.dumps(outs.annotate(doc), indent=2, allow_nan=False))
+        print(strict_json(outs.annotate(doc)))
         return outs.status(status)
     print(f"{args.data}: {data.n} samples x {data.n_channels} channels")
     print(f"error: {sel.error_definition}")
@@ -259,7 +259,7 @@ def _select_scene(args, names, checks) -> int:
     written = doc["written"] = outs.written
     status = 0 if not res.scene.bad and not res.unrepresented() else 1
     if args.json:
-        print(json.dumps(outs.annotate(doc), indent=2, allow_nan=False))
+        print(strict_json(outs.annotate(doc)))
         return outs.status(status)
     print(f"{args.scene}: {len(res.materials)} materials ({res.seconds:.1f} s)"
           + ("" if res.materials[0].selection.target is None else

@@ -110,6 +110,7 @@ from brdf_fit.selection.nesting import (
     decisive_extension,
     lobe_gains,
     refit_lobe_test,
+    reproduced_level,
 )
 
 __all__ = ["ANISOTROPIC_CANDIDATES", "CEILING_ABOVE_NOISE", "COST_PAIRS", "COST_ROUNDS",
@@ -372,9 +373,12 @@ def _candidate(name, r, data, n_res, checks, costs, measure, t0) -> Candidate:
     bic = n_res * logs + k * math.log(n_res)
     chi2 = None
     if data.sigma is not None:
-        w = _radiance(data)[0] > 0
-        z = (m - data.value)[w] / np.maximum(data.sigma[w], 1e-300)
-        chi2 = float(np.sum(z * z) / max(z.size - k, 1))
+        # samples with a stated noise only: multiplicative noise gives a value of exactly 0
+        # (Mitsuba's below the horizon) a sigma of 0, whose z (and so chi2) was infinite for
+        # any model, and the scene's JSON answer failed on it after a 4-minute run
+        w = (_radiance(data)[0] > 0) & (data.sigma > 0)
+        z = (m - data.value)[w] / data.sigma[w]
+        chi2 = float(np.sum(z * z) / max(z.size - k, 1)) if z.size else None
     status = {}
     if checks:
         from brdf_fit.verify.checks import run_checks
@@ -568,8 +572,11 @@ def select(data: GonioData, candidates: Sequence[str] | None = None, budget: flo
             message = (f"choice: {choice}, error {ch.error:.4g} (budget {budget:.4g}): "
                        f"{gave_way.model}, the cheapest within budget, leaves {gave_way.error:.4g}"
                        f"; the extra lobe removes "
-                       f"{100 * ch.lobe_gain['fraction_removed']:.4g}% of that and passes the "
-                       "F test")
+                       f"{100 * ch.lobe_gain['fraction_removed']:.4g}% of that"
+                       + (f", reproduces the data to the noise ({ch.error:.4g} within "
+                          f"{reproduced_level(noise):.4g})" if noise is not None
+                          and ch.error <= reproduced_level(noise) else "")
+                       + " and passes the F test")
     return Selection(choice=choice, budget=float(budget), budget_rule=rule,
                      error_definition=error_definition, candidates=out, noise_level=noise,
                      n_samples=data.n, seconds=time.perf_counter() - t_start,
