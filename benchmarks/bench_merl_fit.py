@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import json
 import os
-import platform
 import subprocess
 import sys
 import tempfile
@@ -42,6 +41,9 @@ import time
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+from bench_latency import _cpu  # noqa: E402  (the CPU's model name)
+
 RESULTS = os.path.join(HERE, "results")
 ALPHA = 0.12
 ALPHA_TOL = 1e-3
@@ -223,7 +225,7 @@ def main() -> None:
             run_ours(path, cache, n)
             scaling.append(run_ours(path, cache, n))
         cold["rel_rms"] = warm["rel_rms"] = _rel_rms(warm["params"], path)
-    doc = {"machine": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
+    doc = {"machine": _cpu(), "cpus": os.cpu_count(),
            "date": time.strftime("%Y-%m-%d"), "brdf_fit_cold": cold, "brdf_fit_warm": warm,
            "mitsuba_adam": adam, "scaling": scaling,
            "command": "python benchmarks/bench_merl_fit.py"}
