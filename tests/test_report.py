@@ -204,3 +204,30 @@ def test_select_report_is_checked_before_the_fits(tmp_path, capsys):
     assert main(["select", "--scene", "example", "--report", str(tmp_path / "s.html")]) == 2
     assert "--report is the page of one data file's selection" in capsys.readouterr().err
     assert not (tmp_path / "s.html").exists()
+
+
+@pytest.mark.slow
+def test_selection_report_opens_in_a_browser(tmp_path, capsys):
+    """The selection page in headless chromium: not blank, its images drawn (the difference
+    with the same page without them covers their area), the three spheres' black backgrounds
+    there only with the images."""
+    chromium = shutil.which("chromium") or shutil.which("chromium-browser")
+    if chromium is None:
+        pytest.skip("Debian's chromium is not installed (.ci/run installs it)")
+    out = tmp_path / "s.html"
+    assert main(["select", str(GOLD), "--candidates", "lambert,ggx,beckmann", "--no-checks",
+                 "--quiet", "--report", str(out)]) == 0
+    capsys.readouterr()
+    shot = _screenshot(chromium, out, tmp_path / "page.png")
+    assert shot.std() > 0.05
+    text = out.read_text(encoding="utf-8")
+    bare = tmp_path / "bare.html"
+    parts = text.split('src="data:image/png;base64,')
+    bare.write_text(parts[0] + "".join('src="' + p.split('"', 1)[1] for p in parts[1:]),
+                    encoding="utf-8")
+    bare_shot = _screenshot(chromium, bare, tmp_path / "bare.png")
+    changed = np.abs(shot - bare_shot).max(-1) > 0.1
+    assert changed.mean() > 0.05, changed.mean()
+    black = lambda a: int((a.max(-1) < 0.03).sum())  # noqa: E731
+    assert black(shot) > 3 * 20_000 and black(bare_shot) < 1_000, (black(shot),
+                                                                    black(bare_shot))
