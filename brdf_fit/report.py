@@ -4,7 +4,9 @@ rendered from themselves beside it, with FLIP between the two), the data against
 slices, and the command and version that produced it. For a selection (``brdf-fit select
 --report out.html``): the choice and why, every candidate's error and cost, speed against error
 as a picture with the Pareto front, the chosen and the most accurate candidates rendered and
-against the data, the exports.
+against the data, the exports. For a database run (``brdf-fit fit FILES --model A,B --table
+T.csv --report out.html``): the error of every model on every material, as a table and as Ngan
+et al.'s figure, each material's best fit rendered, the failures and the options.
 
 Every figure is a PNG inside the page (``data:`` URIs), so the file opens anywhere without the
 network; the page has no script and reads as plain HTML (inline CSS for the tables only).
@@ -16,13 +18,14 @@ import base64
 import datetime
 import html
 import io
+import math
 import platform
 
 import numpy as np
 
 from brdf_fit._version import __version__
 
-__all__ = ["REPORT_SPHERE_SIZE", "fit_report", "select_report"]
+__all__ = ["REPORT_SPHERE_SIZE", "database_report", "fit_report", "select_report"]
 
 #: side in pixels of the rendered spheres in a report
 REPORT_SPHERE_SIZE = 256
@@ -321,3 +324,93 @@ def select_report(selection, data, *, source: str, command: str, table=None,
                                                        f"; round-trip error {e['error']:.3g}"))
             + "</li>" for e in exports) + "</ul>")
     return _page(f"selection: {source}", parts, command)
+
+
+#: side in pixels of each material's sphere on a database run's page
+DATABASE_SPHERE_SIZE = 128
+
+
+def _row_model(row):
+    """The fitted model of a database row (its parameters by entry label, ``f0[R]`` ...,
+    gathered back into arrays in the row's order), or None where the entry no longer builds."""
+    from brdf_fit import registry
+
+    params: dict = {}
+    for label, v in row["params"].items():
+        params.setdefault(label.split("[", 1)[0], []).append(v)
+    try:
+        return registry.get(row["model"]).build(
+            **{k: np.array(v) if len(v) > 1 else np.array(v[0]) for k, v in params.items()})
+    except (KeyError, ValueError, TypeError):
+        return None
+
+
+def database_report(rows, meta: dict, *, table: str, command: str) -> str:
+    """The HTML page of a database run (:func:`brdf_fit.fitting.database.fit_database` rows and
+    the table's ``meta``: files, models, options, failures) written to ``table``: every model's
+    relative RMS radiance error on every material (the best per material in bold, a fit that
+    did not converge marked), the same as Ngan et al.'s figure (materials ordered by their best
+    error), each material's best fit rendered, the published measures of that fit, the
+    failures and the options."""
+    from brdf_fit import plot, render
+    from brdf_fit.fitting.errors import ERRORS
+
+    models = list(meta.get("models") or dict.fromkeys(r["model"] for r in rows))
+    materials = list(dict.fromkeys(r["material"] for r in rows))
+    by = {(r["material"], r["model"]): r for r in rows}
+
+    def rel(r):
+        v = r["errors"].get("rel_rms")
+        return math.inf if v is None or not math.isfinite(v) else v
+
+    best = {m: min((by[(m, k)] for k in models if (m, k) in by), key=rel) for m in materials}
+    parts = [f"<h1>Database fit: {len(meta.get('files', materials))} files x {len(models)} "
+             f"models</h1>",
+             f"<p>Table: {html.escape(table)} (CSV, and JSON beside it). {len(rows)} of "
+             f"{meta.get('pairs', len(rows))} pairs finished; options: "
+             f"{html.escape(', '.join(f'{k}={v}' for k, v in (meta.get('options') or {}).items()))}"
+             ".</p>"]
+    failures = meta.get("failures") or []
+    if failures:
+        parts.append('<p class="bad">Failed: ' + html.escape("; ".join(map(str, failures)))
+                     + "</p>")
+    head = "".join(f"<th>{html.escape(k)}</th>" for k in models)
+    body = []
+    for m in materials:
+        cells = []
+        for k in models:
+            r = by.get((m, k))
+            if r is None:
+                cells.append("<td>-</td>")
+                continue
+            txt = _num(r["errors"].get("rel_rms", math.nan), 4) + (
+                "" if r["converged"] else " (not converged)")
+            cells.append(f"<td><b>{txt}</b></td>" if r is best[m] else f"<td>{txt}</td>")
+        body.append(f"<tr><td>{html.escape(m)}</td>{''.join(cells)}</tr>")
+    parts.append("<h2>Relative RMS radiance error</h2><p>" + html.escape(ERRORS["rel_rms"])
+                 + "; the best model per material in bold.</p><table><tr><th>material</th>"
+                 + head + "</tr>" + "".join(body) + "</table>")
+    parts.append(_img(_figure_png(plot.database_errors(rows)), "errors over the materials",
+                      "each model's error over the materials, ordered by their best error "
+                      "(as Ngan et al., EGSR 2005, plot theirs); open markers: not converged"))
+    measures = [k for k in ERRORS if k != "rel_rms"]
+    rows_best = "".join(
+        f"<tr><td>{html.escape(m)}</td><td>{html.escape(best[m]['model'])}</td>"
+        + "".join(f"<td>{_num(best[m]['errors'].get(k, math.nan), 4)}</td>" for k in measures)
+        + "</tr>" for m in materials)
+    parts.append("<h2>The best fit per material, in the published measures</h2><table><tr>"
+                 "<th>material</th><th>model</th>"
+                 + "".join(f"<th>{html.escape(k)}</th>" for k in measures) + "</tr>"
+                 + rows_best + "</table><p>"
+                 + "<br>".join(html.escape(f"{k}: {ERRORS[k]}") for k in measures) + "</p>")
+    figures = []
+    for m in materials:
+        model = _row_model(best[m])
+        if model is None:
+            continue
+        sphere = render.render_sphere(model, DATABASE_SPHERE_SIZE)
+        figures.append(_img(_pixels_png(render.srgb_8bit(sphere.radiance)), f"{m}, rendered",
+                            f"{m}: {best[m]['model']} as fitted (directional light at 45 "
+                            "degrees, irradiance pi, sRGB)"))
+    parts.append("<h2>Each material's best fit, rendered</h2>" + "".join(figures))
+    return _page(f"database fit: {table}", parts, command)

@@ -139,9 +139,9 @@ def run(args) -> int:
     use_x64()
     models = [m.strip() for m in args.model.split(",") if m.strip()]
     if len(args.data) > 1 or len(models) > 1 or args.table is not None or args.shard:
-        if args.report is not None:
-            raise CLIError("--report is the page of one fit (one file, one model); a database "
-                           "run writes its table and figure (--table)")
+        if args.report is not None and args.shard:
+            raise CLIError("--report is written by the run that assembles the table, not by "
+                           "one --shard of it")
         return run_database(args, models)
     if args.processes is not None:
         raise CLIError("--processes shares a database run (several files or models, --table)")
@@ -249,7 +249,9 @@ def add_parser(sub) -> None:
     f.add_argument("--report", default=None, metavar="OUT.html",
                    help="one self-contained HTML page: parameters with 95%% intervals, where "
                         "the misfit is, the fit rendered (MERL data also rendered from "
-                        "themselves, with FLIP between the two), slices, the command")
+                        "themselves, with FLIP between the two), slices, the command; for a "
+                        "database run (--table): every model's error on every material, the "
+                        "figure, each material's best fit rendered")
     db = f.add_argument_group("a database run (many files x models, one table)")
     db.add_argument("--table", default=None, metavar="OUT.csv",
                     help="fit every file to every --model and write the table (CSV, and JSON "

@@ -88,6 +88,8 @@ def _fit_database_run(args, models) -> int:
         raise CLIError("--fix and --init name one model's parameters: give one --model with "
                        "them")
     check_output_file(args.table, (".csv",), "--table")
+    if args.report is not None:
+        check_output_file(args.report, (".html",), "--report")
     reg = load_registry()
     entries = [reg.get(m) for m in models]  # an unknown name fails before any file is read
     files = _database_files(args.data, exclude=(args.table,))
@@ -165,6 +167,8 @@ def _fit_database_run(args, models) -> int:
             outs.figure("--table", figure, database_errors(run.rows))
     except ImportError:
         pass  # matplotlib is an extra: the table stands without its figure
+    if args.report is not None and run.rows:
+        outs.write("--report", args.report, lambda: _write_database_report(args, run, meta))
     written = outs.written
     seconds = time.perf_counter() - t0
     not_conv = [f"{r['material']} {r['model']}" for r in run.rows if not r["converged"]]
@@ -202,12 +206,24 @@ def _print_database(run, models) -> None:
         print("(* not converged)")
 
 
+def _write_database_report(args, run, meta) -> None:
+    """``--report``: the run's HTML page (:func:`brdf_fit.report.database_report`)."""
+    import shlex
+
+    from brdf_fit.core.atomic import write_text_atomic
+    from brdf_fit.report import database_report
+
+    argv = args._argv if getattr(args, "_argv", None) is not None else sys.argv[1:]
+    write_text_atomic(args.report, database_report(run.rows, meta, table=args.table,
+                                                   command=shlex.join(["brdf-fit", *argv])))
+
+
 def _database_processes(args) -> None:
     """``--processes N``: N local processes, each fitting every N-th pair (``--shard I/N``);
     returns when all have ended (the caller then assembles the table, fitting whatever a
     process could not finish). Ctrl-C stops them all."""
 
-    argv = child_argv(args, ("--processes",), ("--json", "--quiet"))
+    argv = child_argv(args, ("--processes", "--report"), ("--json", "--quiet"))
     n = args.processes
     procs = [launch([*argv, "--shard", f"{i}/{n}", *(["--quiet"] if args.quiet else [])])
              for i in range(n)]

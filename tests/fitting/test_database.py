@@ -161,6 +161,10 @@ def test_cli_table_and_figure(folder, tmp_path, capsys):
     assert again["fitted_now"] == 0 and again["already_done"] == 6
     assert all(_same(x, y) for x, y in zip(doc["rows"], again["rows"], strict=True))
     for argv, words in ((["--model", "ggx,lambert"], "--table"),
+                        (["--model", "ggx,lambert", "--table", str(out), "--report",
+                          str(tmp_path / "r.txt")], "--report expects .html"),
+                        (["--model", "ggx,lambert", "--table", str(out), "--shard", "0/2",
+                          "--report", str(tmp_path / "r.html")], "not by one --shard"),
                         (["--model", "ggx", "--table", str(tmp_path / "t.txt")], ".csv"),
                         (["--model", "ggx,nosuch", "--table", str(out)], "nosuch"),
                         (["--model", "ggx,lambert", "--table", str(out), "--init", "alpha=0.2"],
@@ -210,3 +214,36 @@ def test_processes_and_a_killed_run(folder, tmp_path):
     doc = json.loads(out.stdout)
     assert doc["already_done"] == kept and doc["fitted_now"] == 6 - kept
     assert all(_same(x, y) for x, y in zip(one.rows, doc["rows"], strict=True))
+
+
+def test_cli_database_report(folder, tmp_path, capsys):
+    """``--report`` on a database run: the page's table holds every pair's rel. RMS as the
+    JSON table has it, the best per material in bold; the figure and one sphere per material
+    are embedded PNGs that decode and are not blank; no script, no outside reference."""
+    from _html import Page, decoded
+
+    from brdf_fit.report import _num
+
+    out, page_path = tmp_path / "results.csv", tmp_path / "db.html"
+    assert main(["fit", str(folder), "--model", ",".join(MODELS), "--table", str(out),
+                 "--max-steps", "64", "--quiet", "--report", str(page_path)]) == 0
+    capsys.readouterr()
+    rows = json.loads(out.with_suffix(".json").read_text())["rows"]
+    text = page_path.read_text(encoding="utf-8")
+    page = Page()
+    page.feed(text)
+    assert page.scripts == 0 and page.links == []
+    assert len(page.images) == 1 + 3  # the figure, a sphere per material
+    for src in page.images:
+        img = decoded(src)
+        assert img.ndim == 3 and img[..., :3].std() > 0.01
+    for r in rows:
+        k = page.cells.index(r["material"])  # the first table: rel. RMS by material x model
+        cell = page.cells[k + 1 + list(MODELS).index(r["model"])]
+        assert cell.startswith(_num(r["errors"]["rel_rms"], 4)), (cell, r)
+    # each material's best pair (GGX, which made the data) is the bold cell of its row
+    for mat in {r["material"] for r in rows}:
+        best = min((r for r in rows if r["material"] == mat),
+                   key=lambda r: r["errors"]["rel_rms"])
+        assert best["model"] == "ggx"
+        assert f"<td><b>{_num(best['errors']['rel_rms'], 4)}" in text
