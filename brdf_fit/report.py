@@ -91,7 +91,10 @@ def _parameter_rows(result, channels) -> list[str]:
             else:
                 cells = [_num(se[j], 3), f"[{_num(x - Z95 * se[j])}, {_num(x + Z95 * se[j])}]",
                          "undetermined" if label in flagged else ""]
-            if name in result.at_bound:
+            # per entry: a vector with one channel at its bound flags that channel only
+            note = result.stderr_note.get(name)
+            entry_note = "" if note is None else str(np.ravel(np.asarray(note))[j])
+            if name in result.at_bound and (note is None or entry_note == "at bound"):
                 cells[2] = (cells[2] + "; " if cells[2] else "") + "at an interval end"
             cls = ' class="bad"' if cells[2] else ""
             rows.append(f"<tr><td>{html.escape(label)}</td><td>{_num(x)}</td>"

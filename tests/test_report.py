@@ -198,3 +198,29 @@ def test_selection_report_opens_in_a_browser(tmp_path, capsys):
     black = lambda a: int((a.max(-1) < 0.03).sum())  # noqa: E731
     assert black(shot) > 3 * 20_000 and black(bare_shot) < 1_000, (black(shot),
                                                                     black(bare_shot))
+
+
+def test_only_the_entry_at_its_bound_is_flagged():
+    """A colour whose blue channel sits at 0 (ggx-plastic fitted to Mitsuba's roughplastic with
+    no blue diffuse): the page flags rho_d[B] at an interval end, not rho_d[R] and rho_d[G],
+    whose intervals are given (all three were flagged)."""
+    from _helpers import random_dirs
+
+    from brdf_fit.data import GonioData
+    from brdf_fit.fitting.single import fit
+    from brdf_fit.report import fit_report
+
+    rng = np.random.default_rng(3)
+    wi, wo = random_dirs(rng, 3000, 0.05), random_dirs(rng, 3000, 0.05)
+    src = registry.get("mitsuba-roughplastic").build(
+        alpha=np.array(0.15), int_ior=np.array(1.5),
+        diffuse_reflectance=np.array([0.6, 0.25, 0.0]))
+    d = GonioData(wi, wo, np.asarray(src.eval(wi, wo)), channels=("R", "G", "B"))
+    r = fit(d, "ggx-plastic")
+    at = np.ravel(r.stderr_note["rho_d"]) == "at bound"
+    assert "rho_d" in r.at_bound and at.any() and not at.all(), r.stderr_note
+    page = _Page()
+    page.feed(fit_report(r, d, source="x", command="brdf-fit fit x"))
+    for j, ch in enumerate("RGB"):
+        k = page.cells.index(f"rho_d[{ch}]")
+        assert ("at an interval end" in page.cells[k + 4]) == bool(at[j]), page.cells[k:k + 5]
