@@ -10,6 +10,7 @@ its bins (``brdf-fit fit ... --report``), and the page is drawn by headless Debi
 import pathlib
 import shutil
 import subprocess
+import sys
 import tempfile
 
 import matplotlib.image
@@ -21,7 +22,6 @@ OUT = ROOT / "docs" / "img" / "report.png"
 
 def main() -> None:
     from brdf_fit import registry
-    from brdf_fit.cli import main as cli
     from brdf_fit.io.merl import write_merl
 
     chromium = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -34,8 +34,11 @@ def main() -> None:
             alpha=np.array(0.15), int_ior=np.array(1.5),
             diffuse_reflectance=np.array([0.6, 0.25, 0.1])))
         page = tmp / "report.html"
-        assert cli(["fit", str(data), "--model", "ggx-plastic", "--max-samples", "100000",
-                    "--quiet", "--report", str(page)]) in (0, 1)
+        # as a user runs it: a fresh process (the command line sets XLA's options before JAX
+        # starts; in this process JAX has started already)
+        subprocess.run([sys.executable, "-m", "brdf_fit.cli", "fit", str(data), "--model",
+                        "ggx-plastic", "--max-samples", "100000", "--quiet", "--report",
+                        str(page)], check=False)
         shot = tmp / "shot.png"
         subprocess.run([chromium, "--headless=new", "--no-sandbox", "--disable-gpu",
                         "--hide-scrollbars", f"--screenshot={shot}", "--window-size=1100,1700",
