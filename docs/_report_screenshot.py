@@ -34,8 +34,10 @@ def main() -> None:
             alpha=np.array(0.15), int_ior=np.array(1.5),
             diffuse_reflectance=np.array([0.6, 0.25, 0.1])))
         page = tmp / "report.html"
-        # as a user runs it: a fresh process (the command line sets XLA's options before JAX
-        # starts; in this process JAX has started already)
+        # as a user runs it: a fresh process. In this one JAX has run in float32 already (the
+        # MERL file is written with x64 off); the command line called here switches x64 on
+        # after that, and the same fit then stalled at 68 steps, "not converged" (issue 40's
+        # note: cause not found; not the XLA options, which were the same)
         subprocess.run([sys.executable, "-m", "brdf_fit.cli", "fit", str(data), "--model",
                         "ggx-plastic", "--max-samples", "100000", "--quiet", "--report",
                         str(page)], check=False)
