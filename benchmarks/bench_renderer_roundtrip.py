@@ -120,10 +120,10 @@ def main(argv=None) -> int:
     datas, clean = {}, {}
     for r in RECIPES:
         recipe = tomllib.loads((ROOT / "examples" / "renderer" / f"{r}.toml").read_text())
-        clean[r] = synthesize(recipe)
+        clean[r] = d = synthesize(recipe)
         if args.noise > 0:
             recipe["noise"] = [{"type": "lognormal", "args": {"sigma": args.noise}}]
-        d = synthesize(recipe)
+            d = synthesize(recipe)
         io.write(d, str(work / f"{r}.csv"))
         datas[r] = d
     scene = work / "scene.toml"
