@@ -74,32 +74,37 @@ def _num(x, digits: int = 6) -> str:
     return "n/a" if not np.isfinite(x) else f"{x:.{digits}g}"
 
 
+def _interval_cells(x, se) -> list[str]:
+    """The standard error and 95% interval cells of an entry (``se`` None or NaN: none)."""
+    if se is None or not np.isfinite(se):
+        return ["undefined", ""]
+    return [_num(se, 3), f"[{_num(x - Z95 * se)}, {_num(x + Z95 * se)}]"]
+
+
+def _row(label: str, x, cells: list[str], note: str) -> str:
+    cls = ' class="bad"' if note else ""
+    return (f"<tr><td>{html.escape(label)}</td><td>{_num(x)}</td><td>{cells[0]}</td>"
+            f"<td>{cells[1]}</td><td{cls}>{html.escape(note)}</td></tr>")
+
+
 def _parameter_rows(result, channels) -> list[str]:
+    from brdf_fit.fitting.problem import parameter_entries  # (JAX: not at the page's import)
+
     rows = []
     flagged = set(result.undetermined)
-    for name, value in result.params.items():
-        v = np.atleast_1d(np.asarray(value, float))
-        se = result.stderr.get(name)
-        se = None if se is None else np.atleast_1d(np.asarray(se, float))
-        for j, x in enumerate(v):
-            label = name if v.size == 1 else (
-                f"{name}[{channels[j]}]" if len(channels) == v.size else f"{name}[{j}]")
-            if name in result.fixed:
-                cells = ["fixed", "", ""]
-            elif se is None or not np.isfinite(se[j]):
-                cells = ["undefined", "", "no standard error"]
-            else:
-                cells = [_num(se[j], 3), f"[{_num(x - Z95 * se[j])}, {_num(x + Z95 * se[j])}]",
-                         "undetermined" if label in flagged else ""]
-            # per entry: a vector with one channel at its bound flags that channel only
-            note = result.stderr_note.get(name)
-            entry_note = "" if note is None else str(np.ravel(np.asarray(note))[j])
-            if name in result.at_bound and (note is None or entry_note == "at bound"):
-                cells[2] = (cells[2] + "; " if cells[2] else "") + "at an interval end"
-            cls = ' class="bad"' if cells[2] else ""
-            rows.append(f"<tr><td>{html.escape(label)}</td><td>{_num(x)}</td>"
-                        f"<td>{cells[0]}</td><td>{cells[1]}</td>"
-                        f"<td{cls}>{html.escape(cells[2])}</td></tr>")
+    for name, j, label, x, se in parameter_entries(result.params, result.stderr, channels):
+        if name in result.fixed:
+            cells, note = ["fixed", ""], ""
+        else:
+            cells = _interval_cells(x, se)
+            note = ("no standard error" if cells[0] == "undefined" else
+                    "undetermined" if label in flagged else "")
+        # per entry: a vector with one channel at its bound flags that channel only
+        notes = result.stderr_note.get(name)
+        entry_note = "" if notes is None else str(np.ravel(np.asarray(notes))[j])
+        if name in result.at_bound and (notes is None or entry_note == "at bound"):
+            note = (note + "; " if note else "") + "at an interval end"
+        rows.append(_row(label, x, cells, note))
     return rows
 
 
@@ -226,24 +231,11 @@ def _page(title: str, parts: list[str], command: str) -> str:
 
 def _candidate_parameter_rows(c, channels) -> list[str]:
     """Value, standard error and 95% interval of a selection candidate's parameters."""
-    rows = []
-    for name, value in c.params.items():
-        v = np.atleast_1d(np.asarray(value, float))
-        se = c.stderr.get(name)
-        se = None if se is None else np.atleast_1d(np.asarray(se, float))
-        for j, x in enumerate(v):
-            label = name if v.size == 1 else (
-                f"{name}[{channels[j]}]" if len(channels) == v.size else f"{name}[{j}]")
-            if se is None or not np.isfinite(se[j]):
-                cells = ["undefined", ""]
-            else:
-                cells = [_num(se[j], 3),
-                         f"[{_num(x - Z95 * se[j])}, {_num(x + Z95 * se[j])}]"]
-            note = "undetermined" if name in c.undetermined or label in c.undetermined else ""
-            cls = ' class="bad"' if note else ""
-            rows.append(f"<tr><td>{html.escape(label)}</td><td>{_num(x)}</td><td>{cells[0]}"
-                        f"</td><td>{cells[1]}</td><td{cls}>{note}</td></tr>")
-    return rows
+    from brdf_fit.fitting.problem import parameter_entries
+
+    return [_row(label, x, _interval_cells(x, se),
+                 "undetermined" if name in c.undetermined or label in c.undetermined else "")
+            for name, _, label, x, se in parameter_entries(c.params, c.stderr, channels)]
 
 
 def _candidate_rows(selection) -> list[str]:

@@ -34,23 +34,19 @@ FIT_TIME_LIMIT = 60.0
 
 def param_rows(result, channels) -> list[str]:
     """One line per parameter (per channel for channel parameters): value +- standard error."""
+    from brdf_fit.fitting.problem import parameter_entries
+
     rows = []
-    for name, value in result.params.items():
-        v = np.atleast_1d(np.asarray(value, float))
-        se = result.stderr.get(name)
-        se = None if se is None else np.atleast_1d(np.asarray(se, float))
+    flagged = set(getattr(result, "undetermined", ()))
+    for name, j, label, x, se in parameter_entries(result.params, result.stderr, channels):
         note = getattr(result, "stderr_note", {}).get(name)
-        note = None if note is None else np.atleast_1d(np.asarray(note, object))
-        flagged = set(getattr(result, "undetermined", ()))
-        for j, x in enumerate(v):
-            label = name if v.size == 1 else (
-                f"{name}[{channels[j]}]" if len(channels) == v.size else f"{name}[{j}]")
-            why = str(note[j]) if note is not None and note.size == v.size else ""
-            err = "(fixed)" if name in result.fixed else (
-                "" if se is None else
-                f"stderr undefined: {why or 'not finite'}" if not np.isfinite(se[j]) else
-                f"+- {se[j]:.3g}" + ("  UNDETERMINED" if label in flagged else ""))
-            rows.append(f"  {label:<16} {x:12.6g}  {err}")
+        note = None if note is None else np.atleast_1d(np.asarray(note, object)).reshape(-1)
+        why = str(note[j]) if note is not None and note.size > j else ""
+        err = "(fixed)" if name in result.fixed else (
+            "" if se is None else
+            f"stderr undefined: {why or 'not finite'}" if not np.isfinite(se) else
+            f"+- {se:.3g}" + ("  UNDETERMINED" if label in flagged else ""))
+        rows.append(f"  {label:<16} {x:12.6g}  {err}")
     return rows
 
 

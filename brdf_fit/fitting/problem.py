@@ -88,6 +88,7 @@ __all__ = [
     "METRICS", "METRIC_H", "RELATIVE_FLOOR", "DATA_SCALE_FLOOR", "EDGE", "AT_BOUND_REL",
     "RANK_RCOND", "DEAD_COLUMN_REL", "NULL_SHARE", "STDERR_NOTES", "stderr_codes", "stderr_notes",
     "UNDETERMINED_REL_STDERR", "UNDETERMINED_RULE", "undetermined", "entry_labels",
+    "parameter_entries",
 ]
 
 METRICS = ("log", "cuberoot", "relative", "absolute", "huber", "cauchy")
@@ -276,6 +277,19 @@ def entry_labels(name: str, shape, channels=()) -> list[str]:
     if len(channels) == size:
         return [f"{name}[{c}]" for c in channels]
     return [f"{name}[{j}]" for j in range(size)]
+
+
+def parameter_entries(params: dict, stderr: dict, channels=()):
+    """``(name, j, label, value, standard error)`` for every entry of every parameter in
+    ``params`` (flattened; ``label`` as :func:`entry_labels`), the standard error from
+    ``stderr`` (NaN where undefined) or None where the parameter has none (a fixed one): the
+    rows of the command line's and the report pages' parameter tables."""
+    for name, value in params.items():
+        v = np.asarray(value, float).reshape(-1)
+        se = stderr.get(name)
+        se = None if se is None else np.asarray(se, float).reshape(-1)
+        for j, label in enumerate(entry_labels(name, np.shape(value), channels)):
+            yield name, j, label, float(v[j]), None if se is None else float(se[j])
 
 
 def stderr_notes(codes, shape=None) -> np.ndarray:
