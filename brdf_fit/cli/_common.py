@@ -296,6 +296,25 @@ def user_errors() -> tuple[type[BaseException], ...]:
     return tuple(errors)
 
 
+def command_line(args) -> str:
+    """The command as the user gave it (``brdf-fit ...``, shell-quoted), for a report page:
+    ``main(argv)``'s arguments, or the process's."""
+    import shlex
+
+    argv = args._argv if getattr(args, "_argv", None) is not None else sys.argv[1:]
+    return shlex.join(["brdf-fit", *argv])
+
+
+def merl_table_of(data, path):
+    """The dense MERL table of ``data`` read from ``path`` when they are a MERL file (a report
+    renders them from themselves and draws their slice), else None."""
+    if data.metadata.get("format") != "merl":
+        return None
+    from brdf_fit.io.merl import read_merl_table
+
+    return read_merl_table(path)
+
+
 def strict_json(doc, indent: int = 2) -> str:
     """``doc`` as strict JSON (no NaN or Infinity, which JSON has not): every non-finite float
     written as null, the rule each result's ``to_dict`` follows for an undefined number. A

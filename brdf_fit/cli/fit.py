@@ -15,7 +15,9 @@ from brdf_fit.cli._common import (
     add_fit_options,
     check_names,
     check_output_file,
+    command_line,
     load_registry,
+    merl_table_of,
     parse_params,
     positive_float,
     positive_int,
@@ -109,25 +111,17 @@ REPORT_EXPORT_MAX_BYTES = 20_000
 def _write_report(args, result, data, exported) -> None:
     """``--report``: the fit's HTML page (:func:`brdf_fit.report.fit_report`), whole or not at
     all; a MERL file's dense table is read again for its renders and slice."""
-    import shlex
-
     from brdf_fit.core.atomic import write_text_atomic
     from brdf_fit.report import fit_report
 
-    table = None
-    if data.metadata.get("format") == "merl":
-        from brdf_fit.io.merl import read_merl_table
-
-        table = read_merl_table(args.data)
     export = None
     if exported is not None:
         export = {**exported, "path": args.export}
         if os.path.getsize(args.export) <= REPORT_EXPORT_MAX_BYTES:
             with open(args.export, encoding="utf-8") as fh:
                 export["text"] = fh.read()
-    argv = args._argv if args._argv is not None else sys.argv[1:]
-    page = fit_report(result, data, source=args.data, table=table, export=export,
-                      command=shlex.join(["brdf-fit", *argv]))
+    page = fit_report(result, data, source=args.data, table=merl_table_of(data, args.data),
+                      export=export, command=command_line(args))
     write_text_atomic(args.report, page)
 
 

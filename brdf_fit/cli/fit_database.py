@@ -14,6 +14,7 @@ from brdf_fit.cli._common import (
     Outputs,
     Terminated,
     check_output_file,
+    command_line,
     load_registry,
     parse_params,
 )
@@ -208,14 +209,11 @@ def _print_database(run, models) -> None:
 
 def _write_database_report(args, run, meta) -> None:
     """``--report``: the run's HTML page (:func:`brdf_fit.report.database_report`)."""
-    import shlex
-
     from brdf_fit.core.atomic import write_text_atomic
     from brdf_fit.report import database_report
 
-    argv = args._argv if getattr(args, "_argv", None) is not None else sys.argv[1:]
     write_text_atomic(args.report, database_report(run.rows, meta, table=args.table,
-                                                   command=shlex.join(["brdf-fit", *argv])))
+                                                   command=command_line(args)))
 
 
 def _database_processes(args) -> None:

@@ -11,7 +11,9 @@ from brdf_fit.cli._common import (
     Outputs,
     check_names,
     check_output_file,
+    command_line,
     load_registry,
+    merl_table_of,
     read_data,
     short_params,
     strict_json,
@@ -150,20 +152,11 @@ def run(args) -> int:
 def _write_report(args, sel, data, exports) -> None:
     """``--report``: the selection's HTML page (:func:`brdf_fit.report.select_report`), whole
     or not at all; a MERL file's dense table is read again for its renders and slice."""
-    import shlex
-    import sys
-
     from brdf_fit.core.atomic import write_text_atomic
     from brdf_fit.report import select_report
 
-    table = None
-    if data.metadata.get("format") == "merl":
-        from brdf_fit.io.merl import read_merl_table
-
-        table = read_merl_table(args.data)
-    argv = args._argv if getattr(args, "_argv", None) is not None else sys.argv[1:]
-    page = select_report(sel, data, source=args.data, table=table, exports=exports,
-                         command=shlex.join(["brdf-fit", *argv]))
+    page = select_report(sel, data, source=args.data, table=merl_table_of(data, args.data),
+                         exports=exports, command=command_line(args))
     write_text_atomic(args.report, page)
 
 
