@@ -107,27 +107,32 @@ def _screenshot(chromium: str, page: pathlib.Path, png: pathlib.Path) -> np.ndar
 
 
 @pytest.mark.slow
-def test_report_opens_in_a_browser(merl_report, tmp_path):
+def _assert_drawn_in_chromium(page: pathlib.Path, tmp_path: pathlib.Path) -> None:
+    """``page`` in headless chromium: not blank; against the same page with every image
+    removed, the images are what differs, over their area (9.5% measured for a fit's MERL page:
+    figures are mostly white); and its three square renders have a black background outside
+    the sphere (35% of 256^2 each) that the page's own colours (white, dark grey #222) lack."""
     chromium = shutil.which("chromium") or shutil.which("chromium-browser")
     if chromium is None:
         pytest.skip("Debian's chromium is not installed (.ci/run installs it)")
-    _, out = merl_report
-    shot = _screenshot(chromium, out, tmp_path / "page.png")
+    shot = _screenshot(chromium, page, tmp_path / "page.png")
     assert shot.std() > 0.05  # not blank
-    # the same page with every image removed: the images are what differs, over their area
-    text = out.read_text(encoding="utf-8")
+    text = page.read_text(encoding="utf-8")
     bare = tmp_path / "bare.html"
     parts = text.split('src="data:image/png;base64,')
     bare.write_text(parts[0] + "".join('src="' + p.split('"', 1)[1] for p in parts[1:]),
                     encoding="utf-8")
     bare_shot = _screenshot(chromium, bare, tmp_path / "bare.png")
     changed = np.abs(shot - bare_shot).max(-1) > 0.1
-    assert changed.mean() > 0.05, changed.mean()  # 9.5% measured (figures are mostly white)
-    # the three square renders (data, fit, FLIP map) have a black background outside the
-    # sphere, 35% of 256^2 each; the page's own colours are white and dark grey (#222)
+    assert changed.mean() > 0.05, changed.mean()
     black = lambda a: int((a.max(-1) < 0.03).sum())  # noqa: E731
     assert black(shot) > 3 * 20_000 and black(bare_shot) < 1_000, (black(shot),
                                                                     black(bare_shot))
+
+
+def test_report_opens_in_a_browser(merl_report, tmp_path):
+    """A fit's MERL page (its three renders: data, fit, FLIP map)."""
+    _assert_drawn_in_chromium(merl_report[1], tmp_path)
 
 
 # ----------------------------------------------------------------------------- select --report
@@ -178,26 +183,13 @@ def test_selection_report_opens_in_a_browser(tmp_path, capsys):
     """The selection page in headless chromium: not blank, its images drawn (the difference
     with the same page without them covers their area), the three spheres' black backgrounds
     there only with the images."""
-    chromium = shutil.which("chromium") or shutil.which("chromium-browser")
-    if chromium is None:
+    if shutil.which("chromium") is None and shutil.which("chromium-browser") is None:
         pytest.skip("Debian's chromium is not installed (.ci/run installs it)")
     out = tmp_path / "s.html"
     assert main(["select", str(GOLD), "--candidates", "lambert,ggx,beckmann", "--no-checks",
                  "--quiet", "--report", str(out)]) == 0
     capsys.readouterr()
-    shot = _screenshot(chromium, out, tmp_path / "page.png")
-    assert shot.std() > 0.05
-    text = out.read_text(encoding="utf-8")
-    bare = tmp_path / "bare.html"
-    parts = text.split('src="data:image/png;base64,')
-    bare.write_text(parts[0] + "".join('src="' + p.split('"', 1)[1] for p in parts[1:]),
-                    encoding="utf-8")
-    bare_shot = _screenshot(chromium, bare, tmp_path / "bare.png")
-    changed = np.abs(shot - bare_shot).max(-1) > 0.1
-    assert changed.mean() > 0.05, changed.mean()
-    black = lambda a: int((a.max(-1) < 0.03).sum())  # noqa: E731
-    assert black(shot) > 3 * 20_000 and black(bare_shot) < 1_000, (black(shot),
-                                                                    black(bare_shot))
+    _assert_drawn_in_chromium(out, tmp_path)
 
 
 def test_only_the_entry_at_its_bound_is_flagged():
