@@ -28,12 +28,18 @@ def launch(argv: list[str]):
 STOP_GRACE_S = 3.0
 
 
-def stop_children(procs) -> None:
+def stop_children(procs, folders=()) -> None:
     """End every process of ``procs`` (subprocess.Popen): SIGTERM, then SIGKILL for whichever
     is still running after :data:`STOP_GRACE_S`; waits for all. The launchers start their
     processes in sessions of their own, so a Ctrl-C at the terminal (SIGINT to the foreground
     group) reaches the launcher alone, which stops them here and prints the one line (each
-    process printed its own traceback before)."""
+    process printed its own traceback before).
+
+    ``folders``: where the processes write (through :mod:`brdf_fit.core.atomic`). A process
+    ended by a signal (the SIGKILL here, or a crash) may have been writing a file, and nothing
+    of it ran to remove the temporary: :func:`remove_leftovers_of` removes it (a block's
+    temporary was left in a fit-batch folder when its process, in a computation that did not
+    return within the grace time, was killed)."""
     import subprocess
     import time
 
@@ -47,6 +53,18 @@ def stop_children(procs) -> None:
         except subprocess.TimeoutExpired:
             p.kill()
             p.wait()
+    remove_leftovers_of(procs, folders)
+
+
+def remove_leftovers_of(procs, folders) -> None:
+    """Remove from ``folders`` the temporary files of those ended processes of ``procs`` that a
+    signal ended (a negative exit status: SIGKILL, a crash), which could not remove their own
+    (:func:`brdf_fit.core.atomic.remove_leftovers`)."""
+    from brdf_fit.core.atomic import remove_leftovers
+
+    ended_by_signal = [p.pid for p in procs if p.returncode is not None and p.returncode < 0]
+    for folder in folders:
+        remove_leftovers(folder, ended_by_signal)
 
 
 def child_argv(args, with_value: tuple[str, ...], flags: tuple[str, ...]) -> list[str]:

@@ -23,7 +23,7 @@ from brdf_fit.cli._common import (
     entry_fix_init,
     read_data,
 )
-from brdf_fit.cli._processes import child_argv, launch, stop_children
+from brdf_fit.cli._processes import child_argv, launch, remove_leftovers_of, stop_children
 from brdf_fit.cli._progress import BatchProgress
 from brdf_fit.cli.fit_batch_arrays import run_images, run_values
 from brdf_fit.core.atomic import write_text_atomic
@@ -160,12 +160,13 @@ def _fit_batch_processes(args) -> int:
                 last, shown = now, k
             time.sleep(0.5)
     except BaseException:  # Ctrl-C or SIGTERM (Terminated): no process outlives this one
-        stop_children(procs)
+        stop_children(procs, folders=[out])
         raise
     finally:
         if not args.quiet and tty:
             print(file=sys.stderr)
     codes = [p.wait() for p in procs]
+    remove_leftovers_of(procs, [out])  # a process that crashed
     # 1 is a finished run with some fit not converged (the report below says which); 2 an
     # error, a negative status a signal
     if any(c not in (0, 1) for c in codes):

@@ -18,7 +18,7 @@ from brdf_fit.cli._common import (
     load_registry,
     parse_params,
 )
-from brdf_fit.cli._processes import child_argv, launch, stop_children
+from brdf_fit.cli._processes import child_argv, launch, remove_leftovers_of, stop_children
 
 #: data file extensions a folder given to `fit` is searched for
 _DATA_EXTS = (".binary", ".bsdf", ".csv", ".npz")
@@ -221,13 +221,17 @@ def _database_processes(args) -> None:
     returns when all have ended (the caller then assembles the table, fitting whatever a
     process could not finish). Ctrl-C stops them all."""
 
+    from brdf_fit.fitting.database import PARTS_SUFFIX
+
     argv = child_argv(args, ("--processes", "--report"), ("--json", "--quiet"))
     n = args.processes
     procs = [launch([*argv, "--shard", f"{i}/{n}", *(["--quiet"] if args.quiet else [])])
              for i in range(n)]
+    parts = args.table + PARTS_SUFFIX
     try:
         for p in procs:
             p.wait()
     except BaseException:  # Ctrl-C or SIGTERM (Terminated): no process outlives this one
-        stop_children(procs)
+        stop_children(procs, folders=[parts])
         raise
+    remove_leftovers_of(procs, [parts])  # a process that crashed

@@ -5,9 +5,11 @@ temporary behind. Every file the package writes goes through here: the command l
 outputs, the fit's exports, glTF files, lookup tables, database parts, fit-batch's blocks and
 maps, figures.
 
-The temporary file's name is unique to the write (created with ``O_EXCL``: ``.NAME.XXXXXXXX.tmp``
-plus the target's suffix, so writers that choose the format by extension, as matplotlib and
-OpenEXR do, see the right one); two runs never touch each other's temporaries. A stop
+The temporary file's name is unique to the write (created with ``O_EXCL``:
+``.NAME.PID-XXXXXXXX.tmp`` plus the target's suffix, so writers that choose the format by
+extension, as matplotlib and OpenEXR do, see the right one); two runs never touch each other's
+temporaries. The writer's process id in the name lets whoever killed a writer (a launcher's
+SIGKILL, which no cleanup survives) remove what it left: :func:`remove_leftovers`. A stop
 (SIGINT, SIGTERM) that arrives while the temporary is being created is held back until its name
 is known to the cleanup, so a stopped command leaves none either. It gets the
 permissions ``open()`` would give a new file (0666 less the umask; it is created 0600)."""
@@ -18,7 +20,8 @@ import contextlib
 import os
 import secrets
 
-__all__ = ["atomic_path", "write_bytes_atomic", "write_text_atomic", "TEMP_MARK"]
+__all__ = ["atomic_path", "write_bytes_atomic", "write_text_atomic", "remove_leftovers",
+           "TEMP_MARK"]
 
 #: how a temporary file is created (``os.open``; a name the tests replace to stop a write there)
 _open = os.open
@@ -90,11 +93,12 @@ def _stops_held():
 
 
 def _create_temporary(folder: str, name: str) -> str:
-    """A new empty file ``.NAME.XXXXXXXX.tmp<suffix>`` in ``folder`` (``O_EXCL``: never another
-    writer's), its path."""
+    """A new empty file ``.NAME.PID-XXXXXXXX.tmp<suffix>`` in ``folder`` (``O_EXCL``: never
+    another writer's), its path."""
     suffix = TEMP_MARK + os.path.splitext(name)[1]
     for _ in range(TEMP_TRIES):
-        candidate = os.path.join(folder, f".{name}.{secrets.token_hex(4)}{suffix}")
+        candidate = os.path.join(folder,
+                                 f".{name}.{os.getpid()}-{secrets.token_hex(4)}{suffix}")
         try:
             fd = _open(candidate, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o600)
         except FileExistsError:
@@ -116,3 +120,22 @@ def write_bytes_atomic(path, data: bytes) -> None:
 def write_text_atomic(path, text: str) -> None:
     """:func:`write_bytes_atomic` of ``text`` in UTF-8."""
     write_bytes_atomic(path, text.encode("utf-8"))
+
+
+def remove_leftovers(folder, pids) -> list[str]:
+    """Remove from ``folder`` the temporary files that the processes ``pids`` were writing
+    when they ended (``.*.PID-*.tmp*``), and return their names. For a process that cannot have
+    cleaned up, one ended by SIGKILL, and only once it has ended: a live writer's temporary is
+    its file being written. A missing folder has none."""
+    import glob
+
+    removed = []
+    for pid in pids:
+        pattern = os.path.join(glob.escape(os.fspath(folder)), f".*.{int(pid)}-*{TEMP_MARK}*")
+        for leftover in glob.glob(pattern, include_hidden=True):
+            try:
+                os.unlink(leftover)
+            except FileNotFoundError:
+                continue
+            removed.append(os.path.basename(leftover))
+    return sorted(removed)

@@ -26,6 +26,8 @@ INIT_TIMEOUT_S = 60
 #: seconds without a heartbeat after which JAX declares a process dead and stops the run
 #: (JAX's default is 100)
 HEARTBEAT_TIMEOUT_S = 100
+#: seconds between a barrier's checks for a stop (the longest a stop waits to be seen there)
+BARRIER_POLL_S = 0.1
 #: seconds a process waits at the final barrier for the others' blocks (a run is as long as
 #: its slowest process: a week, within the int32 milliseconds the barrier takes)
 DONE_TIMEOUT_S = 7 * 24 * 3600
@@ -121,7 +123,16 @@ def _wait_for(coordinator: str, timeout_s: float, process_id, num_processes) -> 
 def barrier(name: str, timeout_s: float | None = None) -> None:
     """Wait until every process of the run reaches the barrier ``name`` (JAX's coordination
     service; nothing to wait for in a single process). ``timeout_s``: :data:`INIT_TIMEOUT_S`
-    for the manifest, :data:`DONE_TIMEOUT_S` for the final barrier (by the name's suffix)."""
+    for the manifest, :data:`DONE_TIMEOUT_S` for the final barrier (by the name's suffix).
+
+    The wait is a thread's, joined by this one in short steps, so that a stop (SIGINT, SIGTERM)
+    reaches the waiting process at once: Python runs signal handlers in the main thread between
+    bytecodes, and a main thread inside the client's C++ wait ran none until it returned (a
+    process done with its blocks sat in the final barrier until its launcher's SIGKILL). A
+    stopped process's waiting thread is abandoned (a daemon; the command line ends the process
+    with ``os._exit``)."""
+    import threading
+
     from jax._src import distributed  # the client of the service initialize() started
 
     client = distributed.global_state.client
@@ -129,9 +140,20 @@ def barrier(name: str, timeout_s: float | None = None) -> None:
         return
     if timeout_s is None:
         timeout_s = DONE_TIMEOUT_S if name.endswith(".done") else INIT_TIMEOUT_S
-    try:
-        client.wait_at_barrier(name, int(timeout_s * 1000))
-    except Exception as e:
+    failure: list[Exception] = []
+
+    def wait():
+        try:
+            client.wait_at_barrier(name, int(timeout_s * 1000))
+        except Exception as e:  # raised below, in the caller's thread
+            failure.append(e)
+
+    waiter = threading.Thread(target=wait, name=f"barrier {name}", daemon=True)
+    waiter.start()
+    while waiter.is_alive():
+        waiter.join(BARRIER_POLL_S)
+    if failure:
+        e = failure[0]
         first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
         raise FitError(f"barrier {name!r}: not every process arrived within {timeout_s:g} s "
                        f"({first}); a process failed or was killed: --resume completes the "

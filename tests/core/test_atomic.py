@@ -73,3 +73,42 @@ def test_without_the_hold_that_stop_leaves_it(tmp_path, monkeypatch):
     left = _files(tmp_path)
     assert len(left) == 1 and left[0].startswith(".b.npz.") and atomic.TEMP_MARK in left[0]
     os.unlink(tmp_path / left[0])
+
+
+_WRITER = """
+import signal, sys, time
+from brdf_fit.core.atomic import atomic_path
+signal.signal(signal.SIGTERM, signal.SIG_IGN)  # a process that does not answer its launcher
+with atomic_path(sys.argv[1]) as tmp:
+    print(tmp, flush=True)
+    time.sleep(600)
+"""
+
+
+@pytest.mark.parametrize("sweep", [True, False])
+def test_a_killed_writers_temporary_is_removed_by_its_launcher(tmp_path, monkeypatch, sweep):
+    """A writer that outlives its launcher's grace time is killed (SIGKILL) inside
+    ``atomic_path``: nothing of it runs to remove its temporary, so the launcher's
+    ``stop_children`` does, in the folders it is given, and only the killed process's (another
+    writer's temporary and the folder's files are kept). Negative control (``sweep=False``): the
+    temporary stays (a fit-batch --processes run stopped by SIGTERM left one in the CI run of
+    2026-12-07)."""
+    import subprocess
+    import sys
+
+    from brdf_fit.cli import _processes
+
+    monkeypatch.setattr(_processes, "STOP_GRACE_S", 0.5)
+    (tmp_path / "kept.txt").write_text("kept")
+    with atomic.atomic_path(tmp_path / "mine.npz") as mine:  # a live writer's, this process's
+        p = subprocess.Popen([sys.executable, "-c", _WRITER, str(tmp_path / "block_000001.npz")],
+                             stdout=subprocess.PIPE, text=True)
+        theirs = p.stdout.readline().strip()
+        assert os.path.exists(theirs) and f".{p.pid}-" in os.path.basename(theirs)
+        _processes.stop_children([p], folders=[tmp_path] if sweep else [])
+        p.stdout.close()
+        assert p.returncode == -signal.SIGKILL
+        left = _files(tmp_path)
+        expected = ["kept.txt", os.path.basename(mine)]
+        assert left == sorted(expected if sweep else [*expected, os.path.basename(theirs)])
+    assert atomic.remove_leftovers(tmp_path / "missing", [p.pid]) == []

@@ -161,6 +161,50 @@ def test_a_process_that_cannot_reach_the_coordinator_says_so(tmp_path):
     assert time.time() - t0 < 60
 
 
+_BARRIER_PROCESS = """
+import os, signal, sys, time
+from brdf_fit.cli._common import Terminated, raise_terminated
+from brdf_fit.fitting import distributed
+coordinator, pid = sys.argv[1], int(sys.argv[2])
+distributed.initialize(coordinator, 2, pid, timeout_s=60)
+signal.signal(signal.SIGTERM, raise_terminated)  # the command line's handler
+if pid == 1:  # never arrives
+    print("joined", flush=True)
+    time.sleep(300)
+print("waiting", flush=True)
+try:
+    distributed.barrier("brdf_fit.test.done")
+except Terminated:
+    print("stopped", flush=True)
+    os._exit(143)  # as the command line ends a stopped run (JAX's exit handler would wait)
+"""
+
+
+@pytest.mark.slow
+def test_a_stop_reaches_a_process_waiting_at_a_barrier():
+    """SIGTERM to a process waiting at the final barrier for another that never comes ends it
+    (its handler runs: the wait is a thread's). Before, the main thread sat in the client's C++
+    wait, no handler ran, and a --processes launcher's stop ended such a process only by
+    SIGKILL after its grace time. (Checked once by hand with the wait in the main thread again:
+    the process was still waiting when the 60 s below ran out.)"""
+    port = _free_port()
+    env = dict(os.environ, PYTHONPATH=str(ROOT), JAX_PLATFORMS="cpu")
+    procs = [subprocess.Popen([sys.executable, "-c", _BARRIER_PROCESS, f"127.0.0.1:{port}",
+                               str(pid)], env=env, stdout=subprocess.PIPE,
+                              stderr=subprocess.STDOUT, text=True) for pid in (0, 1)]
+    try:
+        assert procs[0].stdout.readline().strip() == "waiting"
+        time.sleep(0.5)  # inside the wait
+        procs[0].send_signal(signal.SIGTERM)
+        out = procs[0].communicate(timeout=60)[0]
+        assert procs[0].returncode == 143 and "stopped" in out, out[-2000:]
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+            p.communicate()
+
+
 @pytest.mark.parametrize("extra, fragment", [
     (["--coordinator", "127.0.0.1:1"], "go together"),
     (["--cluster", "--coordinator", "127.0.0.1:1", "--num-processes", "2", "--process-id", "0"],
