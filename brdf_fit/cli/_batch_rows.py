@@ -36,7 +36,7 @@ def read_many(paths, skip_bad: bool):
 
 def batch_rows(paths, res, channels) -> list[dict]:
     from brdf_fit.fitting.problem import entry_labels  # loaded with fit_batch already
-    from brdf_fit.fitting.single import json_floats
+    from brdf_fit.fitting.result import json_floats
 
     rows = []
     und = res.undetermined

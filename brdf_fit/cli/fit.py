@@ -74,7 +74,7 @@ def _print_fit(result, data, path: str) -> None:
     print_undetermined(result.undetermined)
     pairs = result.strongly_correlated()
     if pairs:
-        from brdf_fit.fitting.single import STRONG_CORRELATION
+        from brdf_fit.fitting.result import STRONG_CORRELATION
 
         shown = ", ".join(f"{a} ~ {b} ({r:+.4f})" for a, b, r in pairs)
         print(f"  strongly correlated (|r| >= {STRONG_CORRELATION:g}): {shown} (the data "

@@ -18,6 +18,11 @@ class ParameterError(ValueError):
     """A model parameter is outside its valid range or has the wrong shape."""
 
 
+class FitError(ValueError):
+    """A fit request that cannot be honoured (unknown parameter, bad option); raised by the
+    fitting layer (:mod:`brdf_fit.fitting.problem` re-exports it)."""
+
+
 def concrete(value):
     """``value`` as a NumPy array, or None if it is a tracer (not inspectable)."""
     try:

@@ -155,7 +155,8 @@ from brdf_fit.fitting.problem import (
     stderr_notes,
     undetermined,
 )
-from brdf_fit.fitting.single import SOLVERS, json_floats
+from brdf_fit.fitting.result import json_floats
+from brdf_fit.fitting.single import SOLVERS
 
 __all__ = ["BatchFitResult", "fit_batch", "BATCH_SOLVERS", "CHUNK_SCHEDULE", "GROUP",
            "MAX_BLOCK"]

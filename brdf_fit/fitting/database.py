@@ -34,7 +34,8 @@ from brdf_fit.core.atomic import write_text_atomic
 from brdf_fit.data import GonioData
 from brdf_fit.fitting.errors import ERRORS, model_errors
 from brdf_fit.fitting.problem import entry_labels
-from brdf_fit.fitting.single import FitResult, fit, json_floats
+from brdf_fit.fitting.result import FitResult, json_floats
+from brdf_fit.fitting.single import fit
 from brdf_fit.io import read
 
 __all__ = ["DatabaseRun", "fit_database", "count_finished", "table_rows", "write_table",

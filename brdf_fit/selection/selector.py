@@ -82,7 +82,8 @@ from brdf_fit import registry
 from brdf_fit.core.validate import ParameterError
 from brdf_fit.data import GonioData
 from brdf_fit.fitting.problem import FitError
-from brdf_fit.fitting.single import fit, json_floats
+from brdf_fit.fitting.result import json_floats
+from brdf_fit.fitting.single import fit
 from brdf_fit.models._base import evaluate
 from brdf_fit.selection.anisotropy import AnisotropyTest, detect_anisotropy
 from brdf_fit.selection.candidates import (
