@@ -19,6 +19,17 @@ The scene, and Mitsuba 3's equivalent (``tests/test_render.py`` renders it there
 
 With the default ``E = pi`` a white Lambertian surface facing the light renders 1.
 
+**A plane at a grazing view** (:func:`render_plane`), where grazing behaviour shows (Fresnel's
+rise, a lobe's off-specular peak, a masking term's fall-off): the square ``|x|, |y| <=``
+:data:`PLANE_HALF_WIDTH` of the plane ``z = 0`` (normal ``+z``, shading frame the world's
+axes: Mitsuba's ``rectangle`` scaled by it), seen by a pinhole camera
+:data:`PLANE_CAMERA_DISTANCE` from the origin at ``view_zenith_deg`` from the normal, on the
+``-y`` side, looking at the origin with ``+z`` up (Mitsuba's ``perspective`` sensor with that
+``look_at`` and a horizontal field of view ``fov_deg``; one ray per pixel through its centre):
+the view direction changes across the image, up to the horizon, above which nothing is drawn.
+The same directional light, ``L = f(wi, wo) cos(theta_i) E``; its default, at the view's zenith
+on the far side (azimuth 90 degrees, toward ``+y``), puts the mirror glint at the image centre.
+
 Under a constant environment of radiance ``L`` (:func:`render_sphere_environment`) a pixel is
 ``L`` times the directional albedo at its view direction, estimated at the pixel centre by
 multiple importance sampling (Veach 1997, ch. 9) of the model's own sampler and the
@@ -37,13 +48,20 @@ import pathlib
 import numpy as np
 
 __all__ = ["FLIP_EXTRA", "FRAME_HALF_WIDTH", "HEURISTICS", "IRRADIANCE", "EnvironmentImage",
-           "MerlTable", "SphereImage", "flip_error", "render_sphere",
-           "render_sphere_environment", "write_image", "write_png"]
+           "MerlTable", "PLANE_CAMERA_DISTANCE", "PLANE_HALF_WIDTH", "SphereImage", "flip_error",
+           "plane_geometry", "render_plane", "render_sphere", "render_sphere_environment",
+           "write_image", "write_png"]
 
 #: half the width of the square the image covers, in sphere radii (a 10% margin)
 FRAME_HALF_WIDTH = 1.1
 #: default irradiance: a white Lambertian surface facing the light renders 1
 IRRADIANCE = math.pi
+#: half the side of the square of the plane :func:`render_plane` draws: at the default view
+#: (camera 0.69 above the plane) only rays within 0.4 degrees of the horizon pass beyond it
+PLANE_HALF_WIDTH = 100.0
+#: distance of :func:`render_plane`'s camera from the origin (the plane's point at the image
+#: centre)
+PLANE_CAMERA_DISTANCE = 4.0
 #: how to install NVIDIA's FLIP (an optional dependency, imported when a difference is asked)
 FLIP_EXTRA = "pip install flip-evaluator (or pip install 'brdf_fit[render]')"
 
@@ -115,12 +133,65 @@ def render_sphere(model, size: int = 256, light_zenith_deg: float = 45.0,
     docstring). One call of ``model.eval`` on every pixel: one compiled program per model
     type and image size, whatever the parameter values. ``irradiance``: a number or one per
     channel."""
-    import jax.numpy as jnp
-
     if size < 1:
         raise ValueError(f"render: size must be >= 1, got {size}")
     light = light_direction(light_zenith_deg, light_azimuth_deg)
-    wi, wo, cos_i, m, cos_view = sphere_geometry(int(size), light)
+    return _shade(model, int(size), light, irradiance, sphere_geometry(int(size), light))
+
+
+def plane_geometry(size: int, light, view_zenith_deg: float, fov_deg: float):
+    """``(wi, wo, cos_i, mask, cos_view)`` per pixel of :func:`render_plane`'s view, flattened
+    row-major (row 0 at the top), as :func:`sphere_geometry` gives them for the sphere; the
+    normal incidence pair where a ray misses the square."""
+    t = math.radians(view_zenith_deg)
+    origin = PLANE_CAMERA_DISTANCE * np.array([0.0, -math.sin(t), math.cos(t)])
+    forward = -origin / np.linalg.norm(origin)
+    left = np.cross([0.0, 0.0, 1.0], forward)  # Mitsuba's look_at: up x dir
+    left /= np.linalg.norm(left)
+    up = np.cross(forward, left)
+    half = math.tan(math.radians(fov_deg) / 2.0)
+    c = ((np.arange(size) + 0.5) / size * 2.0 - 1.0) * half
+    d = (forward[None, None] - c[None, :, None] * left[None, None]
+         - c[:, None, None] * up[None, None]).reshape(-1, 3)
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    down = d[:, 2] < 0.0
+    dist = np.where(down, -origin[2] / np.where(down, d[:, 2], -1.0), 0.0)
+    p = origin[None] + dist[:, None] * d
+    m = down & (np.abs(p[:, 0]) <= PLANE_HALF_WIDTH) & (np.abs(p[:, 1]) <= PLANE_HALF_WIDTH)
+    zup = np.array([0.0, 0.0, 1.0])
+    light = np.asarray(light, float)
+    wi = np.where(m[:, None], light / np.linalg.norm(light), zup)
+    wo = np.where(m[:, None], -d, zup)
+    cos_i = np.where(m, np.maximum(wi[:, 2], 0.0), 0.0)
+    return wi, wo, cos_i, m, np.where(m, wo[:, 2], 0.0)
+
+
+def render_plane(model, size: int = 256, view_zenith_deg: float = 80.0, fov_deg: float = 30.0,
+                 light_zenith_deg: float | None = None, light_azimuth_deg: float = 90.0,
+                 irradiance=IRRADIANCE) -> SphereImage:
+    """The plane at a grazing view (module docstring) shaded with ``model`` under a
+    directional light, as a :class:`SphereImage` (``mask``: the pixels that see the plane;
+    ``cos_view``: ``n . wo`` there, small toward the horizon). ``light_zenith_deg`` defaults to
+    ``view_zenith_deg`` (with azimuth 90 degrees: the mirror glint at the centre). One call of
+    ``model.eval`` on every pixel, as :func:`render_sphere`."""
+    if size < 1:
+        raise ValueError(f"render: size must be >= 1, got {size}")
+    if not 0.0 < view_zenith_deg < 90.0:
+        raise ValueError(f"render: view zenith {view_zenith_deg} must be in (0, 90) degrees")
+    if not 0.0 < fov_deg < 180.0:
+        raise ValueError(f"render: field of view {fov_deg} must be in (0, 180) degrees")
+    zenith = view_zenith_deg if light_zenith_deg is None else light_zenith_deg
+    light = light_direction(zenith, light_azimuth_deg)
+    geometry = plane_geometry(int(size), light, view_zenith_deg, fov_deg)
+    return _shade(model, int(size), light, irradiance, geometry)
+
+
+def _shade(model, size: int, light, irradiance, geometry) -> SphereImage:
+    """``f(wi, wo) cos_i E`` at every pixel of ``geometry`` (:func:`sphere_geometry` or
+    :func:`plane_geometry`), 0 off the mask: one ``model.eval`` call."""
+    import jax.numpy as jnp
+
+    wi, wo, cos_i, m, cos_view = geometry
     dtype = jnp.zeros(()).dtype
     f = np.asarray(model.eval(jnp.asarray(wi, dtype), jnp.asarray(wo, dtype)), float)
     f = f.reshape(len(wi), -1)

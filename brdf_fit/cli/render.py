@@ -1,6 +1,6 @@
-"""``brdf-fit render``: a sphere shaded with a model, a fit's result or dense MERL data under
-a directional light (:mod:`brdf_fit.render`), as sRGB PNG or linear OpenEXR; data beside a
-model also gives NVIDIA's FLIP between them."""
+"""``brdf-fit render``: a sphere (or a plane seen at a grazing angle) shaded with a model, a
+fit's result or dense MERL data under a directional light (:mod:`brdf_fit.render`), as sRGB PNG
+or linear OpenEXR; data beside a model also gives NVIDIA's FLIP between them."""
 
 from __future__ import annotations
 
@@ -24,6 +24,8 @@ from brdf_fit.cli._common import (
 
 #: the largest image side the command renders (4096^2 pixels: ~0.4 GB of float64 geometry)
 MAX_SIZE = 4096
+#: ``--scene plane``: the camera's default angle from the plane's normal (a grazing view)
+VIEW_ZENITH_DEG = 80.0
 
 
 def _from_fit(path: str, reg):
@@ -71,8 +73,20 @@ def run(args) -> int:
     check_output_file(args.output, (".png", ".exr"), "-o")
     if args.size > MAX_SIZE:
         raise CLIError(f"--size {args.size}: at most {MAX_SIZE}")
+    plane = args.scene == "plane"
+    if not 0.0 < args.view_zenith_deg < 90.0:
+        raise CLIError(f"--view-zenith-deg {args.view_zenith_deg}: must be in (0, 90)")
+    if args.view_zenith_deg != VIEW_ZENITH_DEG and not plane:
+        raise CLIError("--view-zenith-deg sets the plane's view: with --scene plane")
+    if args.light_zenith_deg is None:  # the plane's default puts the mirror glint at its centre
+        args.light_zenith_deg = args.view_zenith_deg if plane else 45.0
+    if args.light_azimuth_deg is None:
+        args.light_azimuth_deg = 90.0 if plane else 0.0
     if not 0.0 <= args.light_zenith_deg < 90.0:
         raise CLIError(f"--light-zenith-deg {args.light_zenith_deg}: must be in [0, 90)")
+    if plane and args.environment is not None:
+        raise CLIError("--environment lights the sphere: the plane renders under the "
+                       "directional light")
     reg = load_registry()
     if args.fit is not None:
         if args.model is not None or args.param:
@@ -118,6 +132,15 @@ def run(args) -> int:
         if getattr(model, "is_delta", False):
             raise CLIError(f"--environment: {entry.name} has a delta lobe (no density for a "
                            "sampled estimate)")
+
+    def draw(shaded):
+        if plane:
+            return render.render_plane(shaded, args.size, args.view_zenith_deg,
+                                       light_zenith_deg=args.light_zenith_deg,
+                                       light_azimuth_deg=args.light_azimuth_deg,
+                                       irradiance=light[3])
+        return render.render_sphere(shaded, *light)
+
     t0 = time.perf_counter()
     if environment is not None:
         from brdf_fit.cli._progress import progress_callback
@@ -130,8 +153,8 @@ def run(args) -> int:
         finally:
             bar.close()
     else:
-        image = None if model is None else render.render_sphere(model, *light)
-    measured = None if table is None else render.render_sphere(render.MerlTable(table), *light)
+        image = None if model is None else draw(model)
+    measured = None if table is None else draw(render.MerlTable(table))
     flip = None
     if image is not None and measured is not None:
         try:
@@ -159,7 +182,8 @@ def run(args) -> int:
            "data_out": str(data_out) if measured is not None else None,
            "flip_out": str(flip_out) if flip is not None else None,
            "flip_mean": None if flip is None else flip[1],
-           "size": args.size,
+           "size": args.size, "scene": args.scene,
+           "view_zenith_deg": args.view_zenith_deg if plane else None,
            "environment": None if environment is None else {
                "radiance": image.irradiance.tolist(), "samples_per_pixel": args.spp,
                "heuristic": args.heuristic, "seed": args.seed,
@@ -181,7 +205,9 @@ def run(args) -> int:
         lit = ("a constant environment" if environment is not None else
                f"light at {args.light_zenith_deg:g} deg zenith, {args.light_azimuth_deg:g} deg "
                f"azimuth, irradiance {fmt(shown.irradiance)}")
-        print(f"{what}: sphere {args.size}x{args.size}, {lit}; largest radiance "
+        scene = (f"plane seen at {args.view_zenith_deg:g} deg from its normal" if plane
+                 else "sphere")
+        print(f"{what}: {scene} {args.size}x{args.size}, {lit}; largest radiance "
               f"{fmt(doc['radiance_max'] or 0.0)}; {seconds:.2f} s")
         if flip is not None:
             print(f"FLIP (data -> model), mean over the sphere: {flip[1]:.4g}")
@@ -196,8 +222,9 @@ def run(args) -> int:
 
 
 def add_parser(sub) -> None:
-    r = sub.add_parser("render", help="a sphere shaded with a model (or a fit's result) under a "
-                                      "directional light, as PNG or OpenEXR")
+    r = sub.add_parser("render", help="a sphere (or a plane at a grazing view) shaded with a "
+                                      "model (or a fit's result) under a directional light, as "
+                                      "PNG or OpenEXR")
     r.add_argument("model", nargs="?", default=None, metavar="MODEL",
                    help="registry model name (or --fit)")
     r.add_argument("-o", "--output", required=True,
@@ -225,11 +252,21 @@ def add_parser(sub) -> None:
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     r.add_argument("--size", type=positive_int, default=256, metavar="N",
                    help="image side in pixels (default 256)")
-    r.add_argument("--light-zenith-deg", type=float, default=45.0, metavar="DEG",
-                   help="the light's angle from the camera's axis (default 45)")
-    r.add_argument("--light-azimuth-deg", type=float, default=0.0, metavar="DEG",
-                   help="the light's azimuth, from the image's right (+x) toward its top "
-                        "(default 0)")
+    r.add_argument("--scene", choices=("sphere", "plane"), default="sphere",
+                   help="a sphere seen along its axis (default), or a plane seen by a pinhole "
+                        "camera at a grazing angle up to its horizon, where grazing behaviour "
+                        "shows (Fresnel, off-specular peaks, masking); Mitsuba 3's 'rectangle' "
+                        "under a 'perspective' sensor of 30 degrees")
+    r.add_argument("--view-zenith-deg", type=float, default=VIEW_ZENITH_DEG, metavar="DEG",
+                   help=f"--scene plane: the camera's angle from the plane's normal (default "
+                        f"{VIEW_ZENITH_DEG:g})")
+    r.add_argument("--light-zenith-deg", type=float, default=None, metavar="DEG",
+                   help="the light's angle from the camera's axis (the sphere; default 45) or "
+                        "from the plane's normal (default the view's zenith)")
+    r.add_argument("--light-azimuth-deg", type=float, default=None, metavar="DEG",
+                   help="the light's azimuth, from the image's right (+x) toward its top (the "
+                        "sphere; default 0) or toward the far side (the plane; default 90: with "
+                        "the default zenith the mirror glint at the centre)")
     r.add_argument("--irradiance", default=None, metavar="E",
                    help="the light's irradiance, a number or one per channel (default pi: a "
                         "white Lambertian surface facing the light renders 1)")
