@@ -3,14 +3,13 @@ with its flags, and the table written (``--out``)."""
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 
 from brdf_fit.cli._common import (
     CLIError,
     extension,
     read_data,
+    strict_json,
     user_errors,
 )
 
@@ -106,7 +105,7 @@ def write_batch_table(rows, path: str) -> None:
     from brdf_fit.core.atomic import write_text_atomic
 
     if extension(path) == ".json":
-        write_text_atomic(path, json.dumps(rows, indent=1))
+        write_text_atomic(path, strict_json(rows, indent=1))
         return
     if extension(path) != ".csv":
         raise CLIError(f"{path}: --out expects .csv or .json")

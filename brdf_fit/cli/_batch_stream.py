@@ -3,11 +3,9 @@ multi-process run joined, fit_stream's keywords, and the report."""
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 
-from brdf_fit.cli._common import CLIError, check_output_dir
+from brdf_fit.cli._common import CLIError, check_output_dir, strict_json
 
 
 def check_out_dir(args):
@@ -90,7 +88,7 @@ def stream_report(args, entry, res, out, full, what, wrote, extra, outs,
                "block_size": res.block_size, "fitted": res.fitted, "skipped": res.skipped,
                "converged": conv, "seconds": round(res.seconds, 3)}
     if args.json:
-        print(json.dumps(outs.annotate(summary), indent=2))
+        print(strict_json(outs.annotate(summary)))
     else:
         print(f"{entry.name} fitted to {what}, metric {args.metric}, in "
               f"{res.n_blocks} block(s) of {res.block_size} ({len(res.fitted)} fitted now, "

@@ -3,12 +3,11 @@ generated section."""
 
 from __future__ import annotations
 
-import json
-
 from brdf_fit.cli._common import (
     CLIError,
     Outputs,
     check_output_file,
+    strict_json,
 )
 
 
@@ -39,7 +38,7 @@ def run(args) -> int:
         print(f"{args.write_readme}: catalogue section {'updated' if changed[0] else 'unchanged'}")
         return 0
     if args.json:
-        print(json.dumps({"summary": catalogue.summary(records), "rows": records}, indent=2))
+        print(strict_json({"summary": catalogue.summary(records), "rows": records}))
         return 0
     print(catalogue.markdown(records), end="")
     return 0

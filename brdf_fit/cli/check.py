@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import json
-
 from brdf_fit.cli._common import (
     CLIError,
     load_registry,
     parse_params,
+    strict_json,
 )
 from brdf_fit.cli._progress import Progress
 
@@ -65,7 +64,7 @@ def run(args) -> int:
     flat = [r for res in all_results for r in res]
     bad = [r for r in flat if not r.ok]
     if args.json:
-        print(json.dumps([r.to_dict() for r in flat], indent=2))
+        print(strict_json([r.to_dict() for r in flat]))
     else:
         n_exp = sum(1 for r in flat if r.applicable and r.expected_failure and not r.passed)
         print(f"{len(flat)} checks on {len(names)} model(s): {len(bad)} failed, "

@@ -3,12 +3,11 @@ materials of an MTL file (``mtl-to-ggx``)."""
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 
 from brdf_fit.cli._common import (
     CLIError,
+    strict_json,
     use_x64,
 )
 from brdf_fit.cli._progress import progress_callback
@@ -68,7 +67,7 @@ def run(args) -> int:
         bar.close()
     doc = result.to_dict()
     if args.json:
-        print(json.dumps(doc, indent=2))
+        print(strict_json(doc))
     else:
         _print_convert(doc)
     return _conversion_status((r["converged"], r["radiance_error"]) for r in doc["rows"])
@@ -98,8 +97,7 @@ def _convert_mtl(args) -> int:
         bar.close()
     status = _conversion_status((r.converged, r.error) for r in rows)
     if args.json:
-        print(json.dumps({"file": args.file, "materials": [r.to_dict() for r in rows]},
-                         indent=2, allow_nan=False))
+        print(strict_json({"file": args.file, "materials": [r.to_dict() for r in rows]}))
         return status
     w = max(len(r.name) for r in rows)
     print(f"{args.file}: {len(rows)} materials; error: relative RMS radiance error of the GGX "

@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import json
 import sys
 
 from brdf_fit.cli._common import (
     check_output_dir,
     fmt,
     short_params,
+    strict_json,
 )
 
 
@@ -98,7 +98,7 @@ def run(args) -> int:
     if failed is not None:  # the results are printed all the same: nothing computed is lost
         doc.update(error=f"--out {failed}; the result is printed instead", exit_status=1)
     if args.json:
-        print(json.dumps(doc, indent=2))
+        print(strict_json(doc))
     else:
         _print_demo(doc)
     status = 0 if all(c["status"] != "FAIL" for c in doc["checks"]) else 1

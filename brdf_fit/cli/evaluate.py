@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import math
 
 import numpy as np
@@ -12,6 +11,7 @@ from brdf_fit.cli._common import (
     fmt,
     load_registry,
     parse_params,
+    strict_json,
 )
 
 
@@ -62,7 +62,7 @@ def run(args) -> int:
     check_angles("--theta-o-deg", args.theta_o_deg)
     table = evaluation_table(entry.name, params, args.theta_i_deg, args.theta_o_deg)
     if args.json:
-        print(json.dumps(table, indent=2))
+        print(strict_json(table))
     else:
         _print_eval(table)
     return 0

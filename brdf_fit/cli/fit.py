@@ -3,7 +3,6 @@ are a database run: :mod:`brdf_fit.cli.fit_database`)."""
 
 from __future__ import annotations
 
-import json
 import os
 import sys
 
@@ -22,6 +21,7 @@ from brdf_fit.cli._common import (
     positive_float,
     positive_int,
     read_data,
+    strict_json,
     use_x64,
 )
 from brdf_fit.cli._export import export_kind, target_entry, write_export
@@ -184,7 +184,7 @@ def run(args) -> int:
         doc = result.to_dict()
         if exported is not None:
             doc["export"] = exported
-        print(json.dumps(outs.annotate(doc), indent=2))
+        print(strict_json(outs.annotate(doc)))
     else:
         _print_fit(result, data, args.data)
         if exported is not None:

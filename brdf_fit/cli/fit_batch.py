@@ -3,8 +3,6 @@ to a folder (:mod:`brdf_fit.cli.fit_batch_stream`)."""
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 
 from brdf_fit.cli._batch_rows import (
@@ -23,6 +21,7 @@ from brdf_fit.cli._common import (
     entry_fix_init,
     fmt,
     positive_int,
+    strict_json,
     use_x64,
 )
 from brdf_fit.cli._progress import BatchProgress
@@ -76,8 +75,8 @@ def run(args) -> int:
     if args.out is not None:
         outs.write("--out", args.out, lambda: write_batch_table(rows, args.out))
     if args.json:
-        print(json.dumps(outs.annotate({"model": entry.name, "results": rows,
-                                        "unreadable": bad}), indent=2))
+        print(strict_json(outs.annotate({"model": entry.name, "results": rows,
+                                        "unreadable": bad})))
     else:
         names = [n for n in entry.param_names]
         print(f"{entry.name} fitted to {len(rows)} file(s), metric {args.metric}")

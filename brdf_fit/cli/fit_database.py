@@ -3,7 +3,6 @@ every model, kept pair by pair, resumable, over several processes."""
 
 from __future__ import annotations
 
-import json
 import os
 import sys
 
@@ -17,6 +16,7 @@ from brdf_fit.cli._common import (
     command_line,
     load_registry,
     parse_params,
+    strict_json,
 )
 from brdf_fit.cli._processes import child_argv, launch, remove_leftovers_of, stop_children
 
@@ -174,7 +174,7 @@ def _fit_database_run(args, models) -> int:
     seconds = time.perf_counter() - t0
     not_conv = [f"{r['material']} {r['model']}" for r in run.rows if not r["converged"]]
     if args.json:
-        print(json.dumps(outs.annotate({
+        print(strict_json(outs.annotate({
             **meta, "fitted_now": run.fitted_now, "already_done": run.already_done,
             "failed": run.failed, "not_converged": not_conv, "written": written,
             "seconds": round(seconds, 3), "rows": run.rows}), indent=1))

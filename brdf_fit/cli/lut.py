@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import json
-
 from brdf_fit.cli._common import (
     CLIError,
     Outputs,
@@ -11,6 +9,7 @@ from brdf_fit.cli._common import (
     load_registry,
     parse_params,
     positive_int,
+    strict_json,
 )
 from brdf_fit.cli._progress import progress_callback
 
@@ -99,7 +98,7 @@ def _lut_albedo(args) -> int:
            "error_estimate": meta.get("error_estimate"), "seconds": round(seconds, 3),
            "files": paths}
     if args.json:
-        print(json.dumps(outs.annotate(doc), indent=2))
+        print(strict_json(outs.annotate(doc)))
     else:
         err = (meta.get("error_estimate") or {}).get("max_abs")
         shape = " x ".join(f"{a.name}={a.n}" for a in table.axes)
@@ -185,7 +184,7 @@ def run(args) -> int:
                               if k in ("max_abs", "method")},
            "seconds": round(seconds, 3), "files": paths}
     if args.json:
-        print(json.dumps(outs.annotate(doc), indent=2))
+        print(strict_json(outs.annotate(doc)))
     else:
         err = doc["error_estimate"].get("max_abs")
         print(f"DFG {args.size}x{args.size} ({meta['masking']} masking, layout {args.layout}, "

@@ -12,7 +12,7 @@ from __future__ import annotations
 import json
 import pathlib
 
-from brdf_fit.cli._common import fmt
+from brdf_fit.cli._common import fmt, strict_json
 
 #: the registry's listing, packaged beside the other resources
 LISTING = pathlib.Path(__file__).resolve().parents[1] / "resources" / "registry.json"
@@ -37,13 +37,13 @@ def write_listing(path=LISTING) -> None:
     """Write the live registry's listing to ``path`` (the packaged file by default)."""
     from brdf_fit.core.atomic import write_text_atomic
 
-    write_text_atomic(path, json.dumps(live_listing(), indent=1) + "\n")
+    write_text_atomic(path, strict_json(live_listing(), indent=1) + "\n")
 
 
 def run(args) -> int:
     entries = read_listing()
     if args.json:
-        print(json.dumps(entries, indent=2))
+        print(strict_json(entries))
         return 0
     print(f"{len(entries)} models (brdf-fit eval MODEL --param NAME=VALUE):\n")
     width = max(len(e["name"]) for e in entries)

@@ -19,6 +19,7 @@ from brdf_fit.cli._common import (
     load_registry,
     parse_params,
     positive_int,
+    strict_json,
     use_x64,
 )
 
@@ -196,7 +197,7 @@ def run(args) -> int:
            "radiance_mean": on.mean(0).tolist() if on.size else None,
            "seconds": round(seconds, 4)}
     if args.json:
-        print(json.dumps(outs.annotate(doc), indent=2))
+        print(strict_json(outs.annotate(doc)))
     else:
         what = ", ".join(f"{k}={fmt(v)}" for k, v in params.items())
         what = (args.data if entry is None else

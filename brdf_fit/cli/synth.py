@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import json
-
 from brdf_fit.cli._common import (
     Outputs,
     check_data_format,
     check_output_file,
+    strict_json,
     use_x64,
 )
 
@@ -34,7 +33,7 @@ def run(args) -> int:
                "model": meta["model"], "seed": meta["seed"], "plan": meta["plan"]["name"],
                "noise": [m["type"] for m in meta["noise"]] if meta["noise"] else []}
     if args.json:
-        print(json.dumps(outs.annotate(summary), indent=2))
+        print(strict_json(outs.annotate(summary)))
     else:
         noise = ", ".join(summary["noise"]) or "none"
         print(f"{'wrote ' + ', '.join(files) if files else 'NOT written'}: {data.n} samples, "

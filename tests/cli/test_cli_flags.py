@@ -18,3 +18,23 @@ def test_flags():
     assert rows[3]["flags"] == ["rms > 10x median"]
     assert rows[4]["flags"] == ["few samples (3 for 4 parameters)"]
     assert rows[5]["flags"] == ["not converged", "at bound"]
+
+
+def test_every_json_answer_is_strict_json():
+    """Every command's ``--json`` answer and JSON file goes through ``strict_json`` (a non-finite
+    number as null: JSON has no NaN, and Python's json.dumps writes it, which strict parsers
+    reject): no command module calls ``json.dumps`` itself (``select`` was the first; a
+    4-minute run once ended in ``ValueError: Out of range float values``). The two
+    ``json.dumps`` left are main.py's error lines (strings only) and fit_batch_arrays's OpenEXR
+    header attribute (names and paths)."""
+    import ast
+    import pathlib
+
+    import brdf_fit.cli as cli
+
+    allowed = {"_common.py": 1, "main.py": 4, "fit_batch_arrays.py": 1}
+    for path in sorted(pathlib.Path(cli.__file__).parent.glob("*.py")):
+        calls = [n for n in ast.walk(ast.parse(path.read_text(encoding="utf-8")))
+                 if isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute)
+                 and n.func.attr == "dumps" and getattr(n.func.value, "id", None) == "json"]
+        assert len(calls) == allowed.get(path.name, 0), (path.name, [c.lineno for c in calls])
