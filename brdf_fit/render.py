@@ -101,25 +101,40 @@ def light_direction(zenith_deg: float, azimuth_deg: float = 0.0) -> np.ndarray:
     return np.array([math.sin(t) * math.cos(p), math.sin(t) * math.sin(p), math.cos(t)])
 
 
-def sphere_geometry(size: int, light) -> tuple[np.ndarray, ...]:
-    """``(wi, wo, cos_i, mask, cos_view)`` per pixel, flattened row-major (row 0 at the top):
-    the light and camera directions in each hit point's shading frame (the normal incidence
-    pair off the sphere, where nothing is drawn), the light's cosine (0 below the surface)."""
+def _sphere_normals(size: int):
+    """``(n, mask)``: the unit sphere's normal at each pixel centre, flattened row-major (row 0
+    at the top; ``(x, y, 0)`` clipped to the disc off the sphere), and the pixels on it."""
     c = (np.arange(size) + 0.5) / size * 2.0 - 1.0
     x = FRAME_HALF_WIDTH * c[None, :].repeat(size, 0)
     y = -FRAME_HALF_WIDTH * c[:, None].repeat(size, 1)
     r2 = x * x + y * y
-    mask = r2 < 1.0
     n = np.stack([x, y, np.sqrt(np.maximum(1.0 - r2, 0.0))], -1).reshape(-1, 3)
+    return n, (r2 < 1.0).reshape(-1)
+
+
+def _frames_of(n):
+    """``(P, 3, 3)``: each normal's shading frame, rows the local axes ``s, t, n`` in world
+    coordinates (module docstring: ``s`` along the sphere's azimuth, Mitsuba's ``dp/du``)."""
     s = np.stack([-n[:, 1], n[:, 0], np.zeros(len(n))], -1)
     norm = np.linalg.norm(s, axis=-1, keepdims=True)
     s = np.where(norm > 0.0, s / np.where(norm > 0.0, norm, 1.0), [1.0, 0.0, 0.0])
-    t = np.cross(n, s)
-    frame = np.stack([s, t, n], 1)  # rows: the local axes in world coordinates
+    return np.stack([s, np.cross(n, s), n], 1)
+
+
+def _sphere_frames(size: int):
+    """``(size^2, 3, 3)``: the shading frame of every pixel (:func:`_frames_of`)."""
+    return _frames_of(_sphere_normals(size)[0])
+
+
+def sphere_geometry(size: int, light) -> tuple[np.ndarray, ...]:
+    """``(wi, wo, cos_i, mask, cos_view)`` per pixel, flattened row-major (row 0 at the top):
+    the light and camera directions in each hit point's shading frame (the normal incidence
+    pair off the sphere, where nothing is drawn), the light's cosine (0 below the surface)."""
+    n, m = _sphere_normals(size)
+    frame = _frames_of(n)
     light = np.asarray(light, float)
     wi = frame @ (light / np.linalg.norm(light))
     wo = frame @ np.array([0.0, 0.0, 1.0])
-    m = mask.reshape(-1)
     up = np.array([0.0, 0.0, 1.0])
     wi = np.where(m[:, None], wi, up)
     wo = np.where(m[:, None], wo, up)
@@ -220,13 +235,15 @@ class EnvironmentImage(SphereImage):
 HEURISTICS = ("balance", "power")
 
 
-def _environment_estimates(model, wo, key, spp: int, power: bool):
-    """``(mean, stderr)`` per pixel of ``int f(wi, wo) cos(theta_i) dwi`` (times the
-    environment's radiance, applied by the caller) by multiple importance sampling of two
-    strategies, one sample each per pass: the model's own sampler (``sample``, density
-    ``pdf``), and the constant environment's, uniform on the sphere (density 1/(4 pi): half
-    its samples fall below the surface and add 0). Each sample's weight is the balance or the
-    power heuristic of the two densities (Veach 1997, eqs. 9.13-9.14)."""
+def _environment_estimates(model, wo, frames, environment, key, spp: int, power: bool):
+    """``(mean, stderr)`` per pixel of ``int f(wi, wo) cos(theta_i) L(wi) dwi`` by multiple
+    importance sampling of two strategies, one sample each per pass: the model's own sampler
+    (``sample``, density ``pdf``), and the environment's (:mod:`brdf_fit.envmap`: uniform on
+    the sphere for a constant one, the map's patches for a lat-long map; its samples below the
+    surface add 0). Each sample's weight is the balance or the power heuristic of the two
+    densities (Veach 1997, eqs. 9.13-9.14). ``wo`` ``(P, 3)`` is local to each pixel's shading
+    frame, ``frames`` ``(P, 3, 3)`` its rows the local axes in world coordinates (the
+    environment's directions are the world's)."""
     import jax
     import jax.numpy as jnp
 
@@ -236,29 +253,27 @@ def _environment_estimates(model, wo, key, spp: int, power: bool):
     uc = jax.random.uniform(k1, (P, spp), wo.dtype)
     u = jax.random.uniform(k2, (P, spp, 2), wo.dtype)
     v = jax.random.uniform(k3, (P, spp, 2), wo.dtype)
-    p_env = 1.0 / (4.0 * jnp.pi)
 
     def weight(p_self, p_other):
         if power:
             return p_self * p_self / (p_self * p_self + p_other * p_other)
         return p_self / (p_self + p_other)
 
-    def contribution(wi, p_self, p_other):
+    def contribution(wi, world, p_self, p_other):
         f = model.eval(wi, wo_s).reshape(P, spp, -1)
         cos = jnp.maximum(wi[..., 2], 0.0)
         ok = (cos > 0.0) & (p_self > 0.0) & jnp.isfinite(p_self)
         w = jnp.where(ok, weight(p_self, p_other) * cos / jnp.where(ok, p_self, 1.0), 0.0)
-        return f * w[..., None]
+        return f * w[..., None] * environment.radiance(world)
 
     s = model.sample(wo_s, uc, u)
-    p_b = s.pdf
-    c_b = contribution(s.wi, p_b, jnp.where(s.wi[..., 2] > 0.0, p_env, 0.0))
-    z = 1.0 - 2.0 * v[..., 0]  # uniform on the sphere (Archimedes: z uniform in [-1, 1])
-    r = jnp.sqrt(jnp.maximum(1.0 - z * z, 0.0))
-    phi = 2.0 * jnp.pi * v[..., 1]
-    wi_e = jnp.stack([r * jnp.cos(phi), r * jnp.sin(phi), z], -1)
-    p_b_at_e = jnp.where(z > 0.0, model.pdf(wi_e, wo_s), 0.0)
-    c_e = contribution(wi_e, jnp.full(z.shape, p_env, wo.dtype), p_b_at_e)
+    world_b = jnp.einsum("pij,psi->psj", frames, s.wi)  # local -> world
+    p_e_at_b = jnp.where(s.wi[..., 2] > 0.0, environment.pdf(world_b), 0.0)
+    c_b = contribution(s.wi, world_b, s.pdf, p_e_at_b)
+    world_e, p_e = environment.sample(v)
+    wi_e = jnp.einsum("pij,psj->psi", frames, world_e)  # world -> local
+    p_b_at_e = jnp.where(wi_e[..., 2] > 0.0, model.pdf(wi_e, wo_s), 0.0)
+    c_e = contribution(wi_e, world_e, p_e, p_b_at_e)
     x = c_b + c_e  # one estimate per pass
     mean = jnp.mean(x, 1)
     stderr = jnp.std(x, 1, ddof=1) / jnp.sqrt(spp)
@@ -271,18 +286,22 @@ ENV_BLOCK_SAMPLES = 1 << 18
 
 def render_sphere_environment(model, size: int = 128, radiance=1.0, samples_per_pixel: int = 64,
                               seed: int = 0, heuristic: str = "balance",
-                              progress=None) -> EnvironmentImage:
-    """The sphere of :func:`render_sphere` lit by a constant environment of ``radiance`` (a
-    number or one per channel) from every direction above each point's surface (a convex
-    sphere does not occlude itself), estimated at each pixel centre with
-    ``samples_per_pixel`` passes of multiple importance sampling (the model's sampler and the
-    environment's uniform one; ``heuristic``: :data:`HEURISTICS`). The exact value is
-    ``radiance`` times the model's directional albedo at the pixel's view direction; the
-    image carries each pixel's standard error. Models with a delta lobe (a mirror) have no
-    density to weigh and are refused. The pixels go in blocks of :data:`ENV_BLOCK_SAMPLES`
-    samples; ``progress(done, total)`` is called after each block."""
+                              progress=None, environment=None) -> EnvironmentImage:
+    """The sphere of :func:`render_sphere` lit by an environment from every direction above
+    each point's surface (a convex sphere does not occlude itself): a constant one of
+    ``radiance`` (a number or one per channel), or ``environment``, a
+    :class:`~brdf_fit.envmap.LatLongEnvironment` (a lat-long map, Mitsuba 3's convention, ``+y``
+    up: :mod:`brdf_fit.envmap`; ``radiance`` then scales it). Estimated at each pixel centre
+    with ``samples_per_pixel`` passes of multiple importance sampling (the model's sampler and
+    the environment's; ``heuristic``: :data:`HEURISTICS`). Under a constant environment the
+    exact value is ``radiance`` times the model's directional albedo at the pixel's view
+    direction; the image carries each pixel's standard error. Models with a delta lobe (a
+    mirror) have no density to weigh and are refused. The pixels go in blocks of
+    :data:`ENV_BLOCK_SAMPLES` samples; ``progress(done, total)`` is called after each block."""
     import jax
     import jax.numpy as jnp
+
+    from brdf_fit.envmap import ConstantEnvironment
 
     if heuristic not in HEURISTICS:
         raise ValueError(f"render: heuristic must be one of {HEURISTICS}, got {heuristic!r}")
@@ -292,8 +311,14 @@ def render_sphere_environment(model, size: int = 128, radiance=1.0, samples_per_
         raise ValueError("render: a model with a delta lobe has no density for an environment "
                          "estimate")
     _, wo, _, m, cos_view = sphere_geometry(int(size), np.array([0.0, 0.0, 1.0]))
+    frames = _sphere_frames(int(size))
     on = np.flatnonzero(m)
     dtype = jnp.zeros(()).dtype
+    scale = np.asarray(radiance, float).reshape(-1)
+    if environment is None:
+        env = ConstantEnvironment(jnp.asarray(np.ones(1), dtype))
+    else:
+        env = jax.tree.map(lambda a: jnp.asarray(a, dtype), environment)
     estimate = _environment_program(heuristic == "power", int(samples_per_pixel))
     # pixels in blocks of one size (one compiled program; memory bounded by the block), each
     # block its own random stream (the seed folded with the block's index)
@@ -304,12 +329,15 @@ def render_sphere_environment(model, size: int = 128, radiance=1.0, samples_per_
     n_blocks = -(-len(on) // block)
     means, ses = [], []
     for b in range(n_blocks):
-        part = wo[on[b * block:(b + 1) * block]]
+        idx = on[b * block:(b + 1) * block]
+        part, fr = wo[idx], frames[idx]
         pad = block - len(part)
         if pad:
             part = np.concatenate([part, np.broadcast_to([0.0, 0.0, 1.0], (pad, 3))])
+            fr = np.concatenate([fr, np.broadcast_to(np.eye(3), (pad, 3, 3))])
         key = jax.random.fold_in(jax.random.key(seed), b)
-        mean_b, se_b = estimate(model, jnp.asarray(part, dtype), key)
+        mean_b, se_b = estimate(model, jnp.asarray(part, dtype), jnp.asarray(fr, dtype), env,
+                                key)
         means.append(np.asarray(mean_b, float)[: block - pad])
         ses.append(np.asarray(se_b, float)[: block - pad])
         if progress is not None:
@@ -317,7 +345,7 @@ def render_sphere_environment(model, size: int = 128, radiance=1.0, samples_per_
     mean = np.concatenate(means).reshape(len(on), -1)
     se = np.concatenate(ses).reshape(len(on), -1)
     channels = max(3, mean.shape[1])
-    L = np.broadcast_to(np.asarray(radiance, float).reshape(-1), (channels,))
+    L = np.broadcast_to(scale, (channels,))
     out = np.zeros((size * size, channels))
     err = np.zeros((size * size, channels))
     out[on] = np.broadcast_to(mean, (len(on), channels)) * L
@@ -331,12 +359,12 @@ def render_sphere_environment(model, size: int = 128, radiance=1.0, samples_per_
 
 @functools.cache
 def _environment_program(power: bool, spp: int):
-    """The compiled estimate of one heuristic and sample count (one program per model type
-    and pixel count)."""
+    """The compiled estimate of one heuristic and sample count (one program per model type,
+    environment kind and shape, and pixel count)."""
     import equinox as eqx
 
-    return eqx.filter_jit(lambda model, wo, key: _environment_estimates(model, wo, key, spp,
-                                                                         power))
+    return eqx.filter_jit(lambda model, wo, frames, env, key: _environment_estimates(
+        model, wo, frames, env, key, spp, power))
 
 
 def flip_error(reference: SphereImage, test: SphereImage) -> tuple[np.ndarray, float]:

@@ -39,6 +39,7 @@ LAYERS = {
     "brdf_fit.selection": 6,
     "brdf_fit.plot": 6,
     "brdf_fit.render": 6,
+    "brdf_fit.envmap": 6,  # the environments that light a render
     "brdf_fit.report": 6,
     # the synthetic instrument uses the library; only the application layer above uses it
     "data_synth": 7,

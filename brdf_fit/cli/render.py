@@ -85,7 +85,7 @@ def run(args) -> int:
         args.light_azimuth_deg = 90.0 if plane else 0.0
     if not 0.0 <= args.light_zenith_deg < 90.0:
         raise CLIError(f"--light-zenith-deg {args.light_zenith_deg}: must be in [0, 90)")
-    if plane and args.environment is not None:
+    if plane and (args.environment is not None or args.environment_map is not None):
         raise CLIError("--environment lights the sphere: the plane renders under the "
                        "directional light")
     reg = load_registry()
@@ -123,6 +123,19 @@ def run(args) -> int:
         raise CLIError(f"--irradiance: one value or {channels} (one per channel), got "
                        f"{len(irradiance)}")
     environment = _irradiance(args.environment, "--environment")
+    envmap = None
+    if args.environment_map is not None:
+        from brdf_fit.envmap import read_latlong
+
+        try:
+            envmap = read_latlong(args.environment_map)
+        except (ValueError, ImportError) as e:
+            raise CLIError(f"--environment-map: {e}") from None
+        if envmap.texels.shape[-1] not in (1, channels):
+            raise CLIError(f"--environment-map {args.environment_map}: "
+                           f"{envmap.texels.shape[-1]} channels, the model has {channels}")
+        if environment is None:
+            environment = [1.0]  # the map as it is
     if environment is not None:
         if model is None or table is not None:
             raise CLIError("--environment renders a MODEL or --fit (dense data have no "
@@ -150,7 +163,8 @@ def run(args) -> int:
                                           * args.spp > 1 << 20, "rendering the environment")
         try:
             image = render.render_sphere_environment(model, args.size, environment, args.spp,
-                                                     args.seed, args.heuristic, progress)
+                                                     args.seed, args.heuristic, progress,
+                                                     environment=envmap)
         finally:
             bar.close()
     else:
@@ -186,7 +200,9 @@ def run(args) -> int:
            "size": args.size, "scene": args.scene,
            "view_zenith_deg": args.view_zenith_deg if plane else None,
            "environment": None if environment is None else {
-               "radiance": image.irradiance.tolist(), "samples_per_pixel": args.spp,
+               "radiance": image.irradiance.tolist(), "map": args.environment_map,
+               "map_shape": None if envmap is None else list(envmap.shape),
+               "samples_per_pixel": args.spp,
                "heuristic": args.heuristic, "seed": args.seed,
                "stderr_relative_median": _relative_stderr(image)},
            "light": None if environment is not None else {
@@ -203,7 +219,8 @@ def run(args) -> int:
         what = (args.data if entry is None else
                 f"{entry.name}{f' ({what})' if what else ''}"
                 + (f" beside {args.data}" if measured is not None else ""))
-        lit = ("a constant environment" if environment is not None else
+        lit = (f"the environment map {args.environment_map}" if envmap is not None else
+               "a constant environment" if environment is not None else
                f"light at {args.light_zenith_deg:g} deg zenith, {args.light_azimuth_deg:g} deg "
                f"azimuth, irradiance {fmt(shown.irradiance)}")
         scene = (f"plane seen at {args.view_zenith_deg:g} deg from its normal" if plane
@@ -213,7 +230,9 @@ def run(args) -> int:
         if flip is not None:
             print(f"FLIP (data -> model), mean over the sphere: {flip[1]:.4g}")
         if environment is not None:
-            print(f"constant environment of radiance {fmt(image.irradiance)}: {args.spp} "
+            kind = (f"environment map ({envmap.shape[0]} x {envmap.shape[1]}) times "
+                    if envmap is not None else "constant environment of radiance ")
+            print(f"{kind}{fmt(image.irradiance)}: {args.spp} "
                   f"samples per pixel, multiple importance sampling ({args.heuristic} "
                   f"heuristic); median relative standard error "
                   f"{doc['environment']['stderr_relative_median']:.3g}")
@@ -242,7 +261,11 @@ def add_parser(sub) -> None:
                    help="light the sphere by a constant environment of radiance L (a number or "
                         "one per channel) instead of the directional light, estimated with "
                         "multiple importance sampling of the model's sampler and the "
-                        "environment's")
+                        "environment's; with --environment-map, the map's scale")
+    r.add_argument("--environment-map", default=None, metavar="FILE.exr",
+                   help="light the sphere by a latitude-longitude OpenEXR map (linear R, G, B; "
+                        "+y up, Mitsuba 3's envmap convention), drawn from in proportion to "
+                        "its radiance")
     r.add_argument("--spp", type=positive_int, default=64, metavar="N",
                    help="--environment: samples per pixel, each one of both strategies "
                         "(default 64); the output gives the estimate's standard error")
