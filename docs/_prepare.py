@@ -1,7 +1,8 @@
 """Generated pages of the documentation site, written by `make docs` before `mkdocs build`:
 
-- ``docs/index.md``: the README with its links made relative to ``docs/`` and its Python and
-  shell blocks executed (generated, not committed: the landing page and the site's home never drift apart);
+- ``docs/index.md``: the README with its links (and its HTML images' sources) made relative to
+  ``docs/`` and its Python and shell blocks executed (generated, not committed: the landing
+  page and the site's home never drift apart);
 - ``docs/report/``: the benchmark report (``benchmarks/results/REPORT.md`` and its figures), as
   committed by ``python benchmarks/report.py`` (not re-measured by the docs build).
 """
@@ -14,7 +15,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 
 def index_text(readme: str) -> str:
-    text = readme.replace("](docs/", "](")
+    text = readme.replace("](docs/", "](").replace('src="docs/', 'src="')
     # the README's Python runs when the site is built (markdown-exec), its output shown
     text = text.replace("```python\n", '```python exec="on" source="above" result="text"\n')
     # and so does its set-up command (make demo: the main job, its output shown)
