@@ -223,16 +223,27 @@ def rusinkiewicz_slices(table, models: Sequence[tuple[str, object]], phi_d_deg: 
     """The arrays :func:`rusinkiewicz_slice` draws: ``(theta_h_deg, theta_d_deg, data,
     [(label, model values, ln(model / data)), ...])``, images ``[i_theta_h, i_theta_d]`` of
     ``channel`` at the ``phi_d`` bin holding ``phi_d_deg``; NaN where a bin is missing (or a
-    value is not positive, in the log ratio)."""
+    value is not positive, in the log ratio). ``table``: a MERL table (3, 90, 90, 180) or its
+    :class:`~brdf_fit.render.MerlTable`, whose bins are drawn, or other dense data with an
+    ``eval(wi, wo)`` (an RGL material, :class:`~brdf_fit.render.RGLData`), evaluated at the
+    same bins' centres."""
     from brdf_fit.io.merl import MERL_DIMS, merl_slice_centres
 
-    table = np.asarray(table, float)
-    if table.shape != (3, *MERL_DIMS):
-        raise ValueError(f"rusinkiewicz_slice: a MERL table (3, 90, 90, 180), got {table.shape}")
     i_pd = min(int(phi_d_deg / 180.0 * MERL_DIMS[2]), MERL_DIMS[2] - 1)
     wi, wo, theta_h, theta_d = merl_slice_centres(i_pd)
-    data = table[channel, :, :, i_pd]
-    data = np.where(data < 0.0, np.nan, data)
+    table = getattr(table, "table", table)  # a MerlTable's bins
+    if hasattr(table, "eval"):
+        data = np.asarray(table.eval(wi.reshape(-1, 3), wo.reshape(-1, 3)), float)
+        data = data[:, None] if data.ndim == 1 else data
+        data = np.broadcast_to(data, (data.shape[0], 3))[:, channel].reshape(wi.shape[:-1])
+        data = np.where((wi[..., 2] > 0) & (wo[..., 2] > 0), data, np.nan)
+    else:
+        table = np.asarray(table, float)
+        if table.shape != (3, *MERL_DIMS):
+            raise ValueError(f"rusinkiewicz_slice: a MERL table (3, 90, 90, 180), got "
+                             f"{table.shape}")
+        data = table[channel, :, :, i_pd]
+        data = np.where(data < 0.0, np.nan, data)
     rows = []
     for label, model in models:
         m = _eval(model, wi.reshape(-1, 3), wo.reshape(-1, 3))
@@ -246,10 +257,11 @@ def rusinkiewicz_slices(table, models: Sequence[tuple[str, object]], phi_d_deg: 
 
 def rusinkiewicz_slice(table, models: Sequence[tuple[str, object]], phi_d_deg: float = 90.0,
                        channel: int = 1, title: str | None = None):
-    """The Rusinkiewicz image slice of dense MERL data (:func:`brdf_fit.io.merl.
-    read_merl_table`) beside each model: ``theta_d`` to the right, ``theta_h`` upward (the
-    bins' centres, MERL's square-root spacing), at one ``phi_d`` bin (90 degrees by default:
-    the slice where retro-reflection sits at small ``theta_d`` and grazing at large); the data
+    """The Rusinkiewicz image slice of dense data (a MERL table, :func:`brdf_fit.io.merl.
+    read_merl_table`, or an RGL material: :func:`rusinkiewicz_slices`) beside each model:
+    ``theta_d`` to the right, ``theta_h`` upward (the bins' centres, MERL's square-root
+    spacing), at one ``phi_d`` bin (90 degrees by default: the slice where retro-reflection
+    sits at small ``theta_d`` and grazing at large); the data
     and each model in log10 on one scale, and ``ln(model / data)`` on a symmetric diverging
     scale; ``channel`` 0, 1, 2 = R, G, B. Missing bins are blank. Rusinkiewicz (1998), sec. 3."""
     th, td, data, rows = rusinkiewicz_slices(table, models, phi_d_deg, channel)

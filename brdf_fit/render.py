@@ -1,6 +1,6 @@
-"""Previews: a sphere shaded with a model under a directional light or a constant
-environment, as a linear image; dense measured data rendered from themselves; NVIDIA's FLIP
-between two renders (issue 46).
+"""Previews: a sphere shaded with a model under a directional light or an environment, or a
+plane at a grazing view, as a linear image; dense measured data (MERL, RGL) rendered from
+themselves; NVIDIA's FLIP between two renders (issue 46).
 
 The scene, and Mitsuba 3's equivalent (``tests/test_render.py`` renders it there too):
 
@@ -48,9 +48,9 @@ import pathlib
 import numpy as np
 
 __all__ = ["FLIP_EXTRA", "FRAME_HALF_WIDTH", "HEURISTICS", "IRRADIANCE", "EnvironmentImage",
-           "MerlTable", "PLANE_CAMERA_DISTANCE", "PLANE_HALF_WIDTH", "SphereImage", "flip_error",
-           "plane_geometry", "render_plane", "render_sphere", "render_sphere_environment",
-           "write_image", "write_png"]
+           "MerlTable", "RGLData", "dense_data", "PLANE_CAMERA_DISTANCE", "PLANE_HALF_WIDTH",
+           "SphereImage", "flip_error", "plane_geometry", "render_plane", "render_sphere",
+           "render_sphere_environment", "write_image", "write_png"]
 
 #: half the width of the square the image covers, in sphere radii (a 10% margin)
 FRAME_HALF_WIDTH = 1.1
@@ -79,6 +79,37 @@ class MerlTable:
 
         v = merl_interpolate(self.table, np.asarray(wi, float), np.asarray(wo, float))
         return np.where(v < 0.0, 0.0, v)
+
+
+class RGLData:
+    """A dense RGL-EPFL material (``.bsdf``) as something :func:`render_sphere` shades with:
+    its own evaluation (:meth:`brdf_fit.io.rgl.RGLMaterial.eval`, the interpolation of
+    Mitsuba 3's ``measured`` plugin), in NumPy; 0 below the surface."""
+
+    def __init__(self, material):
+        self.material = material
+
+    def eval(self, wi, wo):
+        return self.material.eval(np.asarray(wi, float), np.asarray(wo, float))
+
+
+def dense_data(path):
+    """Dense measured data that can be rendered from themselves: a MERL ``.binary`` file
+    (:class:`MerlTable`) or an RGL ``.bsdf`` file (:class:`RGLData`); None for any other
+    file (sparse data: a gonioreflectometer's samples cannot be rendered from themselves).
+    A file of either kind that cannot be read raises :class:`~brdf_fit.data.DataError` naming
+    it."""
+    import os
+
+    from brdf_fit.io.merl import is_merl_file, read_merl_table
+
+    if is_merl_file(path):
+        return MerlTable(read_merl_table(path))
+    if os.fspath(path).lower().endswith(".bsdf"):
+        from brdf_fit.io.rgl import RGLMaterial, read_tensor_file
+
+        return RGLData(RGLMaterial(read_tensor_file(path), os.fspath(path)))
+    return None
 
 
 @dataclasses.dataclass

@@ -123,9 +123,9 @@ def _region_rows(regions) -> list[str]:
 def fit_report(result, data, *, source: str, command: str, table=None,
                export: dict | None = None) -> str:
     """The HTML page of ``result`` (:class:`~brdf_fit.fitting.single.FitResult`) fitted to
-    ``data`` (:class:`~brdf_fit.data.GonioData`) read from ``source``. ``table``: the dense
-    MERL table of the data (:func:`brdf_fit.io.merl.read_merl_table`) when they are one:
-    they are then rendered from themselves beside the fit, with FLIP between the two (where
+    ``data`` (:class:`~brdf_fit.data.GonioData`) read from ``source``. ``table``: the data as
+    dense data when they are (:func:`brdf_fit.render.dense_data`: a MERL table or an RGL
+    material; a bare MERL table array is taken too): they are then rendered from themselves beside the fit, with FLIP between the two (where
     ``flip-evaluator`` is installed), and their Rusinkiewicz slice is drawn. ``export``: the
     fit's ``--export`` answer, shown as written. ``command``: the command line, shown as
     given."""
@@ -169,8 +169,8 @@ def fit_report(result, data, *, source: str, command: str, table=None,
 
 
 def _rendered(models, table) -> tuple[str, list[str]]:
-    """``(FLIP line, figures)``: each ``(name, model)`` rendered as a sphere; for dense MERL
-    data (``table``) the data rendered from themselves first, and FLIP from the data to the
+    """``(FLIP line, figures)``: each ``(name, model)`` rendered as a sphere; for dense data
+    (``table``: MERL or RGL) the data rendered from themselves first, and FLIP from the data to the
     first model."""
     from brdf_fit import render
 
@@ -181,7 +181,8 @@ def _rendered(models, table) -> tuple[str, list[str]]:
                for (name, _), sp in zip(models, spheres, strict=True)]
     flip_line = ""
     if table is not None:
-        measured = render.render_sphere(render.MerlTable(table), REPORT_SPHERE_SIZE)
+        shader = table if hasattr(table, "eval") else render.MerlTable(table)
+        measured = render.render_sphere(shader, REPORT_SPHERE_SIZE)
         figures.insert(0, _img(_pixels_png(render.srgb_8bit(measured.radiance)),
                                "the data, rendered",
                                "the data rendered from themselves (trilinear between the MERL "
@@ -204,7 +205,7 @@ def _rendered(models, table) -> tuple[str, list[str]]:
 
 def _slices(data, models, table) -> list[str]:
     """In-plane slices and residuals of the data against ``models`` (``(label, model)``); the
-    Rusinkiewicz slice for dense MERL data (``table``)."""
+    Rusinkiewicz slice for dense data (``table``: MERL or RGL)."""
     from brdf_fit import plot
 
     out = [_img(_figure_png(plot.in_plane_slices(data, models, (0.0, 30.0, 60.0))),
@@ -272,7 +273,7 @@ def select_report(selection, data, *, source: str, command: str, table=None,
     (error, within the budget, committed and live cost, on the Pareto front, converged, what
     an extra lobe removes), error against cost with the front and the choice ringed, the
     choice's parameters with their 95% intervals, the choice and the most accurate candidates
-    rendered (dense MERL data, ``table``: the data too, with FLIP to the choice) and against
+    rendered (dense data, ``table``: the data too, with FLIP to the choice) and against
     the data. ``exports``: the command's written exports (their ``to_dict`` answers)."""
     from brdf_fit import plot
 

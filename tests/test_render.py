@@ -337,7 +337,7 @@ def test_command_with_data(conductor_file, tmp_path, capsys):
     csv.write_text("theta_i,phi_i,theta_o,phi_o,value\n0,0,10,0,0.3\n")
     assert main(["render", "--data", str(csv), "-o", str(tmp_path / "x.png")]) == 2
     err = capsys.readouterr().err
-    assert "dense MERL .binary data only" in err and not (tmp_path / "x.png").exists()
+    assert "dense data only" in err and not (tmp_path / "x.png").exists()
 
 
 # ----------------------------------------------------------------------------- environment
@@ -568,3 +568,53 @@ def test_command_environment_map(tmp_path, capsys):
         assert main(["render", "ggx", "-o", str(tmp_path / "x.png"), *argv]) == 2
         err = capsys.readouterr().err
         assert fragment in err and err.count("\n") == 1, err
+
+
+# ----------------------------------------------------------------------------- RGL data
+
+
+@pytest.fixture(scope="module")
+def rgl_file(tmp_path_factory):
+    """An isotropic RGL ``.bsdf`` material with random tables (tests/io/test_rgl.py's)."""
+    from brdf_fit.io.rgl import write_tensor_file
+    from tests.io.test_rgl import _material_fields
+
+    path = tmp_path_factory.mktemp("rgl") / "iso.bsdf"
+    write_tensor_file(path, **_material_fields("iso", seed=44))
+    return path
+
+
+def test_rgl_data_render_from_themselves_and_give_their_slice(rgl_file, tmp_path, capsys):
+    """An RGL file renders through its own evaluation (Mitsuba's measured plugin's, checked
+    in tests/io/test_rgl.py): every sphere pixel is the material at that pixel's pair times
+    the light's cosine and irradiance; beside a model the command gives FLIP; its Rusinkiewicz
+    slice is the material at the slice's bin centres; a sparse file is refused."""
+    from brdf_fit.io.merl import merl_slice_centres
+    from brdf_fit.io.rgl import RGLMaterial, read_tensor_file
+    from brdf_fit.plot import rusinkiewicz_slices
+    from brdf_fit.render import dense_data, sphere_geometry
+
+    shader = dense_data(rgl_file)
+    img = render_sphere(shader, 33, light_zenith_deg=40.0)
+    material = RGLMaterial(read_tensor_file(rgl_file))
+    wi, wo, cos_i, m, _ = sphere_geometry(33, img.light)
+    want = material.eval(wi, wo) * cos_i[:, None] * IRRADIANCE
+    np.testing.assert_allclose(img.radiance.reshape(-1, 3)[m], want[m], rtol=1e-12)
+    assert img.radiance.reshape(-1, 3)[m].max() > 0
+    _, _, data, _ = rusinkiewicz_slices(shader, [])
+    swi, swo, _, _ = merl_slice_centres(90)  # the bin holding phi_d = 90 degrees
+    want = material.eval(swi.reshape(-1, 3), swo.reshape(-1, 3))[:, 1].reshape(data.shape)
+    ok = (swi[..., 2] > 0) & (swo[..., 2] > 0)
+    np.testing.assert_allclose(data[ok], want[ok], rtol=1e-12)
+    assert np.isnan(data[~ok]).all()
+    out = tmp_path / "r.png"
+    pytest.importorskip("flip_evaluator", reason="NVIDIA's FLIP (flip-evaluator) is not installed")
+    assert main(["render", "lambert", "--data", str(rgl_file), "--size", "24", "-o", str(out),
+                 "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["data"] == str(rgl_file) and doc["flip_mean"] > 0
+    assert (tmp_path / "r_data.png").exists() and (tmp_path / "r_flip.png").exists()
+    csv = tmp_path / "sparse.csv"
+    csv.write_text("theta_i,phi_i,theta_o,phi_o,value\n10,0,10,180,0.5\n")
+    assert main(["render", "--data", str(csv), "-o", str(out)]) == 2
+    assert "dense data only" in capsys.readouterr().err

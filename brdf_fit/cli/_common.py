@@ -305,14 +305,15 @@ def command_line(args) -> str:
     return shlex.join(["brdf-fit", *argv])
 
 
-def merl_table_of(data, path):
-    """The dense MERL table of ``data`` read from ``path`` when they are a MERL file (a report
-    renders them from themselves and draws their slice), else None."""
-    if data.metadata.get("format") != "merl":
+def dense_data_of(data, path):
+    """``data`` read from ``path`` as dense data a report renders from themselves and draws
+    the slice of (:func:`brdf_fit.render.dense_data`: a MERL table or an RGL material) when
+    they are a MERL or RGL file, else None."""
+    if data.metadata.get("format") not in ("merl", "rgl"):
         return None
-    from brdf_fit.io.merl import read_merl_table
+    from brdf_fit.render import dense_data
 
-    return read_merl_table(path)
+    return dense_data(path)
 
 
 def strict_json(doc, indent: int = 2) -> str:

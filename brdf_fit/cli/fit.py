@@ -15,8 +15,8 @@ from brdf_fit.cli._common import (
     check_names,
     check_output_file,
     command_line,
+    dense_data_of,
     load_registry,
-    merl_table_of,
     parse_params,
     positive_float,
     positive_int,
@@ -120,7 +120,7 @@ def _write_report(args, result, data, exported) -> None:
         if os.path.getsize(args.export) <= REPORT_EXPORT_MAX_BYTES:
             with open(args.export, encoding="utf-8") as fh:
                 export["text"] = fh.read()
-    page = fit_report(result, data, source=args.data, table=merl_table_of(data, args.data),
+    page = fit_report(result, data, source=args.data, table=dense_data_of(data, args.data),
                       export=export, command=command_line(args))
     write_text_atomic(args.report, page)
 

@@ -63,10 +63,10 @@ def run(args) -> int:
                                     title=args.data)
         fig2 = plot.residuals(data, models, title=args.data)
     fig3 = None
-    if data is not None and data.metadata.get("format") == "merl":  # dense: its own slice
-        from brdf_fit.io.merl import read_merl_table
+    if data is not None and data.metadata.get("format") in ("merl", "rgl"):  # its own slice
+        from brdf_fit.render import dense_data
 
-        fig3 = plot.rusinkiewicz_slice(read_merl_table(args.data), models,
+        fig3 = plot.rusinkiewicz_slice(dense_data(args.data), models,
                                        channel=1 if args.channel is None else args.channel,
                                        title=args.data)
     outs = Outputs(note="the fitted parameters are printed above" if args.fit else None)

@@ -1,6 +1,7 @@
 """``brdf-fit render``: a sphere (or a plane seen at a grazing angle) shaded with a model, a
-fit's result or dense MERL data under a directional light (:mod:`brdf_fit.render`), as sRGB PNG
-or linear OpenEXR; data beside a model also gives NVIDIA's FLIP between them."""
+fit's result or dense MERL or RGL data under a directional light or an environment
+(:mod:`brdf_fit.render`), as sRGB PNG or linear OpenEXR; data beside a model also gives NVIDIA's
+FLIP between them."""
 
 from __future__ import annotations
 
@@ -105,12 +106,17 @@ def run(args) -> int:
         params = parse_params(args.param, entry)
     table = None
     if args.data is not None:
-        from brdf_fit.io.merl import is_merl_file, read_merl_table
+        from brdf_fit.data import DataError
+        from brdf_fit.render import dense_data
 
-        if not is_merl_file(args.data):
-            raise CLIError(f"{args.data}: --data renders dense MERL .binary data only (sparse "
-                           "data cannot be rendered from themselves: render a fit of them)")
-        table = read_merl_table(args.data)
+        try:
+            table = dense_data(args.data)
+        except (DataError, OSError) as e:
+            raise CLIError(str(e)) from None
+        if table is None:
+            raise CLIError(f"{args.data}: --data renders dense data only, a MERL .binary or an "
+                           "RGL .bsdf file (sparse data cannot be rendered from themselves: "
+                           "render a fit of them)")
     irradiance = _irradiance(args.irradiance)
     use_x64()
     from brdf_fit import render
@@ -169,7 +175,7 @@ def run(args) -> int:
             bar.close()
     else:
         image = None if model is None else draw(model)
-    measured = None if table is None else draw(render.MerlTable(table))
+    measured = None if table is None else draw(table)
     flip = None
     if image is not None and measured is not None:
         try:
@@ -253,10 +259,12 @@ def add_parser(sub) -> None:
                    help="a parameter of MODEL (a number or one per channel); repeatable")
     r.add_argument("--fit", default=None, metavar="FIT.json",
                    help="the JSON answer of 'brdf-fit fit --json': its model and parameters")
-    r.add_argument("--data", default=None, metavar="FILE.binary",
-                   help="dense MERL data rendered from themselves (trilinear between the bin "
-                        "centres), written as NAME_data beside -o; with a MODEL or --fit also "
-                        "NAME_flip.png, NVIDIA's FLIP between the two (its mean in the output)")
+    r.add_argument("--data", default=None, metavar="FILE",
+                   help="dense data rendered from themselves, a MERL .binary (trilinear "
+                        "between the bin centres) or an RGL .bsdf (Mitsuba's measured "
+                        "plugin's interpolation), written as NAME_data beside -o; with a MODEL "
+                        "or --fit also NAME_flip.png, NVIDIA's FLIP between the two (its mean "
+                        "in the output)")
     r.add_argument("--environment", default=None, metavar="L",
                    help="light the sphere by a constant environment of radiance L (a number or "
                         "one per channel) instead of the directional light, estimated with "

@@ -12,8 +12,8 @@ from brdf_fit.cli._common import (
     check_names,
     check_output_file,
     command_line,
+    dense_data_of,
     load_registry,
-    merl_table_of,
     read_data,
     short_params,
     strict_json,
@@ -155,7 +155,7 @@ def _write_report(args, sel, data, exports) -> None:
     from brdf_fit.core.atomic import write_text_atomic
     from brdf_fit.report import select_report
 
-    page = select_report(sel, data, source=args.data, table=merl_table_of(data, args.data),
+    page = select_report(sel, data, source=args.data, table=dense_data_of(data, args.data),
                          exports=exports, command=command_line(args))
     write_text_atomic(args.report, page)
 
