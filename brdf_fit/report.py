@@ -125,8 +125,9 @@ def fit_report(result, data, *, source: str, command: str, table=None,
     """The HTML page of ``result`` (:class:`~brdf_fit.fitting.single.FitResult`) fitted to
     ``data`` (:class:`~brdf_fit.data.GonioData`) read from ``source``. ``table``: the data as
     dense data when they are (:func:`brdf_fit.render.dense_data`: a MERL table or an RGL
-    material; a bare MERL table array is taken too): they are then rendered from themselves beside the fit, with FLIP between the two (where
-    ``flip-evaluator`` is installed), and their Rusinkiewicz slice is drawn. ``export``: the
+    material; a bare MERL table array is taken too): they are then rendered from themselves
+    beside the fit, with FLIP between the two (where ``flip-evaluator`` is installed), and
+    their Rusinkiewicz slice is drawn. ``export``: the
     fit's ``--export`` answer, shown as written. ``command``: the command line, shown as
     given."""
 
