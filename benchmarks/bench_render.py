@@ -8,7 +8,8 @@ at 45 degrees, direct illumination only, ``--size`` x ``--size`` pixels. Per mod
 (``mitsuba-roughconductor``, ``mitsuba-roughplastic``, ``ggx``, ``disney``): the first call in
 this process (it compiles the model's program for this size) and the best of ``--repeats`` warm
 calls with new parameter values each time (what a user changing a slider waits for). Then the
-same under a constant environment at 64 samples per pixel (multiple importance sampling). The
+same under a constant environment at 64 samples per pixel (multiple importance sampling), and
+under a lat-long environment map (:func:`sky_texels`, 64 x 128, a sky with a sun). The
 baseline, in the same run: Mitsuba 3's ``mi.render`` of the same scene at one sample per pixel
 (64 under the environment) with its ``direct`` integrator, in the ``scalar_rgb`` variant (best
 of ``--repeats``, after a first render), for the two Mitsuba models; ``llvm_ad_rgb`` too where
@@ -65,26 +66,41 @@ def time_ours(name: str, size: int, repeats: int) -> dict:
 ENV_SPP = 64
 
 
-def time_ours_environment(name: str, size: int, repeats: int) -> dict:
-    """A constant environment at :data:`ENV_SPP` samples per pixel: first call, best warm."""
+def sky_texels(height: int = 64, width: int = 128) -> np.ndarray:
+    """A lat-long map (Mitsuba's convention, ``+y`` up, :mod:`brdf_fit.envmap`): a sky of
+    radiance 1 to 0.3 from the zenith to the horizon, a ground of 0.1, and a sun of 400 (a
+    3 x 3 texel patch 30 degrees above the horizon)."""
+    v = np.arange(height) / (height - 1)
+    sky = np.where(v < 0.5, 0.3 + 0.7 * np.cos(np.pi * v), 0.1)
+    tex = np.repeat(sky[:, None, None], width, 1).repeat(3, 2) * np.array([0.8, 0.9, 1.0])
+    j = int(round((1.0 / 3.0) * (height - 1)))
+    tex[j - 1:j + 2, width // 4 - 1:width // 4 + 2] = 400.0
+    return tex
+
+
+def time_ours_environment(name: str, size: int, repeats: int, envmap: bool = False) -> dict:
+    """A constant environment (or :func:`sky_texels` with ``envmap``) at :data:`ENV_SPP`
+    samples per pixel: first call, best warm."""
+    from brdf_fit.envmap import LatLongEnvironment
     from brdf_fit.render import render_sphere_environment
 
+    env = LatLongEnvironment.of(sky_texels()) if envmap else None
     entry = registry.get(name)
     key, values = MODELS[name]
     t = time.perf_counter()
-    render_sphere_environment(entry.build(), size, samples_per_pixel=ENV_SPP)
+    render_sphere_environment(entry.build(), size, samples_per_pixel=ENV_SPP, environment=env)
     first = time.perf_counter() - t
     warm = []
     for k in range(max(1, repeats // 2)):
         t = time.perf_counter()
         render_sphere_environment(entry.build(**{key: values[k % len(values)]}), size,
-                                  samples_per_pixel=ENV_SPP, seed=k + 1)
+                                  samples_per_pixel=ENV_SPP, seed=k + 1, environment=env)
         warm.append(time.perf_counter() - t)
     return {"first_s": first, "warm_best_s": min(warm), "warm_s": warm}
 
 
 def time_mitsuba(name: str, size: int, repeats: int, variant: str,
-                 environment: bool = False) -> dict | None:
+                 environment: bool | str = False) -> dict | None:
     try:
         import mitsuba as mi
 
@@ -102,7 +118,9 @@ def time_mitsuba(name: str, size: int, repeats: int, variant: str,
                    "sampler": {"type": "independent", "sample_count": 1}},
         "sphere": {"type": "sphere",
                    "bsdf": to_mitsuba(name, {}, verify=False).scene_dict},
-        "light": ({"type": "constant", "radiance": {"type": "rgb", "value": 1.0}}
+        "light": ({"type": "envmap", "bitmap": mi.Bitmap(sky_texels().astype(np.float32))}
+                  if environment == "map" else
+                  {"type": "constant", "radiance": {"type": "rgb", "value": 1.0}}
                   if environment else
                   {"type": "directional", "direction": [-np.sin(theta), 0.0, -np.cos(theta)],
                    "irradiance": {"type": "rgb", "value": IRRADIANCE}}),
@@ -129,12 +147,15 @@ def main() -> None:
     rows = []
     for name in MODELS:
         row = {"model": name, "ours": time_ours(name, args.size, args.repeats),
-               "ours_environment": time_ours_environment(name, args.size, args.repeats)}
+               "ours_environment": time_ours_environment(name, args.size, args.repeats),
+               "ours_envmap": time_ours_environment(name, args.size, args.repeats, True)}
         if name.startswith("mitsuba-"):
             for variant in ("scalar_rgb", "llvm_ad_rgb"):
                 row[variant] = time_mitsuba(name, args.size, args.repeats, variant)
                 row[variant + "_environment"] = time_mitsuba(name, args.size, args.repeats,
                                                              variant, environment=True)
+                row[variant + "_envmap"] = time_mitsuba(name, args.size, args.repeats,
+                                                        variant, environment="map")
         rows.append(row)
         print(json.dumps(row))
     doc = {"command": "python benchmarks/bench_render.py " + " ".join(sys.argv[1:]),
@@ -178,6 +199,10 @@ def main() -> None:
               "per sample; Mitsuba: `direct` with its `constant` emitter, which samples the "
               "emitter and the BSDF too). Ours: best of the warm calls and the first.", "",
               *table("_environment")]
+    lines += ["", f"A lat-long environment map (`sky_texels`: 64 x 128, a sky and a 400x sun), "
+              f"{ENV_SPP} samples per pixel (ours: the map's patches drawn by radiance times "
+              "solid angle against the model's sampler; Mitsuba: `direct` with its `envmap` "
+              "emitter of the same texels).", "", *table("_envmap")]
     with open(os.path.join(args.out, "render.md"), "w", encoding="utf-8") as fh:
         fh.write("\n".join(lines) + "\n")
     print("\n".join(lines))
