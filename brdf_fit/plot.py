@@ -528,3 +528,52 @@ def database_errors(rows: Sequence[dict], measure: str = "rel_rms", title: str |
     ax.set_title(title or f"{len(order)} materials x {len(models)} models: {measure} "
                  "(open marker: not converged)", fontsize=9)
     return fig
+
+
+def database_front_points(rows: Sequence[dict], measure: str = "rel_rms",
+                          costs: dict | None = None) -> list[dict]:
+    """Speed against error over a database run's materials: per model with a committed cost
+    (``costs``, default :func:`brdf_fit.selection.costs.committed_costs`, x Lambert), its
+    finite positive errors over the materials, their median, and whether that median is on the
+    Pareto front of the models (no other model both no dearer and no worse, and one of them
+    strictly), as :func:`brdf_fit.selection.Selection`'s candidates are for one material."""
+    from brdf_fit.selection.costs import committed_costs
+
+    costs = committed_costs() if costs is None else costs
+    points = []
+    for k in dict.fromkeys(r["model"] for r in rows):
+        errs = [r["errors"].get(measure) for r in rows if r["model"] == k]
+        errs = [float(v) for v in errs if v is not None and math.isfinite(v) and v > 0]
+        if k in costs and errs:
+            points.append({"model": k, "cost": float(costs[k]), "errors": errs,
+                           "median": float(np.median(errs))})
+    for p in points:
+        p["pareto"] = not any(
+            o["cost"] <= p["cost"] and o["median"] <= p["median"]
+            and (o["cost"] < p["cost"] or o["median"] < p["median"])
+            for o in points if o is not p)
+    return points
+
+
+def database_front(rows: Sequence[dict], measure: str = "rel_rms", costs: dict | None = None,
+                   title: str | None = None):
+    """:func:`database_front_points` drawn (log-log): each model's error on every material
+    (small points) and their median (large), at its committed cost; the Pareto front of the
+    medians joined."""
+    points = database_front_points(rows, measure, costs)
+    fig = _figure(6.0, 4.2)
+    ax = fig.subplots()
+    for p in points:
+        line, = ax.loglog([p["cost"]] * len(p["errors"]), p["errors"], ".", ms=4, alpha=0.5)
+        ax.loglog(p["cost"], p["median"], "o", ms=8, color=line.get_color())
+        ax.annotate(p["model"], (p["cost"], p["median"]), fontsize=7, xytext=(5, 3),
+                    textcoords="offset points")
+    front = sorted((p for p in points if p["pareto"]), key=lambda p: p["cost"])
+    ax.plot([p["cost"] for p in front], [p["median"] for p in front], "-", color="0.4", lw=0.8,
+            label="Pareto front of the medians")
+    ax.set_xlabel("cost [x Lambert, committed table]")
+    ax.set_ylabel(f"{measure} (each material; large: median)")
+    ax.grid(True, which="both", lw=0.3)
+    ax.legend(fontsize=7)
+    ax.set_title(title or "speed against error over the materials", fontsize=9)
+    return fig

@@ -390,6 +390,10 @@ def database_report(rows, meta: dict, *, table: str, command: str) -> str:
     parts.append(_img(_figure_png(plot.database_errors(rows)), "errors over the materials",
                       "each model's error over the materials, ordered by their best error "
                       "(as Ngan et al., EGSR 2005, plot theirs); open markers: not converged"))
+    parts.append("<h2>Speed against error</h2>" + _img(
+        _figure_png(plot.database_front(rows)), "speed against error over the materials",
+        "each model's error on every material (small points) and their median (large) against "
+        "its committed evaluation cost (x Lambert); the Pareto front of the medians joined"))
     measures = [k for k in ERRORS if k != "rel_rms"]
     rows_best = "".join(
         f"<tr><td>{html.escape(m)}</td><td>{html.escape(best[m]['model'])}</td>"

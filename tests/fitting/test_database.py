@@ -233,7 +233,7 @@ def test_cli_database_report(folder, tmp_path, capsys):
     page = Page()
     page.feed(text)
     assert page.scripts == 0 and page.links == []
-    assert len(page.images) == 1 + 3  # the figure, a sphere per material
+    assert len(page.images) == 2 + 3  # two figures, a sphere per material
     for src in page.images:
         img = decoded(src)
         assert img.ndim == 3 and img[..., :3].std() > 0.01
@@ -247,3 +247,33 @@ def test_cli_database_report(folder, tmp_path, capsys):
                    key=lambda r: r["errors"]["rel_rms"])
         assert best["model"] == "ggx"
         assert f"<td><b>{_num(best['errors']['rel_rms'], 4)}" in text
+    # speed against error over the materials: the front holds exactly the non-dominated models
+    from brdf_fit.plot import database_front_points
+
+    points = database_front_points(rows)
+    assert {p["model"] for p in points} == set(MODELS)
+    for p in points:
+        dominated = any(o["cost"] <= p["cost"] and o["median"] <= p["median"]
+                        and (o["cost"], o["median"]) != (p["cost"], p["median"])
+                        for o in points)
+        assert p["pareto"] == (not dominated), points
+        assert p["median"] == np.median([r["errors"]["rel_rms"] for r in rows
+                                         if r["model"] == p["model"]])
+
+
+def test_database_front_holds_the_non_dominated_models():
+    """Three models over two materials at costs 1, 2 and 3: the middle one, dearer and worse
+    than the first at its median, is off the front; the dearest and best is on it; a model
+    without a committed cost, and non-finite errors, are left out."""
+    from brdf_fit.plot import database_front, database_front_points
+
+    def row(model, material, e):
+        return {"model": model, "material": material, "errors": {"rel_rms": e},
+                "converged": True}
+
+    rows = [row("a", "m1", 0.1), row("a", "m2", 0.3), row("b", "m1", 0.2), row("b", "m2", 0.5),
+            row("c", "m1", 0.01), row("c", "m2", float("nan")), row("d", "m1", 0.001)]
+    points = database_front_points(rows, costs={"a": 1.0, "b": 2.0, "c": 3.0})
+    got = {p["model"]: (p["median"], p["pareto"]) for p in points}
+    assert got == {"a": (0.2, True), "b": (0.35, False), "c": (0.01, True)}
+    assert database_front(rows, costs={"a": 1.0, "b": 2.0, "c": 3.0}).axes
