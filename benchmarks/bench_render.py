@@ -9,7 +9,8 @@ at 45 degrees, direct illumination only, ``--size`` x ``--size`` pixels. Per mod
 this process (it compiles the model's program for this size) and the best of ``--repeats`` warm
 calls with new parameter values each time (what a user changing a slider waits for). Then the
 same under a constant environment at 64 samples per pixel (multiple importance sampling), and
-under a lat-long environment map (:func:`sky_texels`, 64 x 128, a sky with a sun). The
+under a lat-long environment map (:func:`brdf_fit.envmap.sky_texels`, 64 x 128, a sky with
+a sun). The
 baseline, in the same run: Mitsuba 3's ``mi.render`` of the same scene at one sample per pixel
 (64 under the environment) with its ``direct`` integrator, in the ``scalar_rgb`` variant (best
 of ``--repeats``, after a first render), for the two Mitsuba models; ``llvm_ad_rgb`` too where
@@ -35,6 +36,7 @@ from bench_eval import machine_info  # noqa: E402
 
 from brdf_fit import registry  # noqa: E402
 from brdf_fit.convert.mitsuba import to_mitsuba  # noqa: E402
+from brdf_fit.envmap import sky_texels  # noqa: E402
 from brdf_fit.render import FRAME_HALF_WIDTH, IRRADIANCE, render_sphere  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -64,18 +66,6 @@ def time_ours(name: str, size: int, repeats: int) -> dict:
 
 #: samples per pixel of the timed environment previews
 ENV_SPP = 64
-
-
-def sky_texels(height: int = 64, width: int = 128) -> np.ndarray:
-    """A lat-long map (Mitsuba's convention, ``+y`` up, :mod:`brdf_fit.envmap`): a sky of
-    radiance 1 to 0.3 from the zenith to the horizon, a ground of 0.1, and a sun of 400 (a
-    3 x 3 texel patch 30 degrees above the horizon)."""
-    v = np.arange(height) / (height - 1)
-    sky = np.where(v < 0.5, 0.3 + 0.7 * np.cos(np.pi * v), 0.1)
-    tex = np.repeat(sky[:, None, None], width, 1).repeat(3, 2) * np.array([0.8, 0.9, 1.0])
-    j = int(round((1.0 / 3.0) * (height - 1)))
-    tex[j - 1:j + 2, width // 4 - 1:width // 4 + 2] = 400.0
-    return tex
 
 
 def time_ours_environment(name: str, size: int, repeats: int, envmap: bool = False) -> dict:

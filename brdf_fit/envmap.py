@@ -31,7 +31,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["ConstantEnvironment", "LatLongEnvironment", "read_latlong"]
+__all__ = ["ConstantEnvironment", "LatLongEnvironment", "read_latlong", "sky_texels",
+           "BUILT_IN"]
 
 
 class ConstantEnvironment(eqx.Module):
@@ -150,11 +151,31 @@ class LatLongEnvironment(eqx.Module):
         return self._pdf(j, i, jnp.sqrt(jnp.maximum(1.0 - d[..., 1] ** 2, 0.0)))
 
 
+def sky_texels(height: int = 64, width: int = 128) -> np.ndarray:
+    """A procedural lat-long map shipped with the package (``--environment-map sky``), in the
+    convention above: a sky of radiance 1 at the zenith falling to 0.3 at the horizon (as
+    ``0.3 + 0.7 cos(theta)``, slightly blue: RGB 0.8, 0.9, 1), a ground of 0.1, and a sun of
+    400 (3 x 3 texels, 30 degrees above the horizon, at azimuth ``u = 1/4``: toward ``+x``)."""
+    v = np.arange(height) / (height - 1)
+    sky = np.where(v < 0.5, 0.3 + 0.7 * np.cos(np.pi * v), 0.1)
+    tex = np.repeat(sky[:, None, None], width, 1).repeat(3, 2) * np.array([0.8, 0.9, 1.0])
+    j = int(round((1.0 / 3.0) * (height - 1)))
+    tex[j - 1:j + 2, width // 4 - 1:width // 4 + 2] = 400.0
+    return tex
+
+
+#: the maps a name gives instead of a file (``--environment-map NAME``)
+BUILT_IN = {"sky": sky_texels}
+
+
 def read_latlong(path, scale: float = 1.0) -> LatLongEnvironment:
     """A lat-long OpenEXR file (its R, G, B channels, linear radiance) as an environment, times
-    ``scale``; a file that cannot be read or is not such a map raises ValueError naming it."""
+    ``scale``; a file that cannot be read or is not such a map raises ValueError naming it.
+    A name of :data:`BUILT_IN` (``sky``) gives that procedural map instead."""
     from brdf_fit.io.exr import read_exr
 
+    if str(path) in BUILT_IN:
+        return LatLongEnvironment.of(BUILT_IN[str(path)]() * scale)
     pixels, channels, _ = read_exr(path)  # (its errors name the file)
     names = [c.upper() for c in channels]
     if all(c in names for c in "RGB"):

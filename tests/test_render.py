@@ -561,6 +561,11 @@ def test_command_environment_map(tmp_path, capsys):
     doc = json.loads(capsys.readouterr().out)
     assert doc["environment"]["map"] == str(flat) and doc["environment"]["map_shape"] == [8, 16]
     np.testing.assert_allclose(doc["radiance_mean"], [0.5, 0.5, 0.5], rtol=0.02)  # .5 2 .5
+    # the package's procedural sky, by name
+    assert main(["render", "lambert", "--param", "rho=0.5", "--environment-map", "sky",
+                 "--spp", "16", "--size", "16", "-o", str(out), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["environment"]["map"] == "sky" and doc["environment"]["map_shape"] == [64, 128]
     for argv, fragment in (
             (["--environment-map", str(tmp_path / "none.exr")], "no such file"),
             (["--environment-map", str(flat), "--scene", "plane"], "directional light"),

@@ -273,7 +273,7 @@ def add_parser(sub) -> None:
     r.add_argument("--environment-map", default=None, metavar="FILE.exr",
                    help="light the sphere by a latitude-longitude OpenEXR map (linear R, G, B; "
                         "+y up, Mitsuba 3's envmap convention), drawn from in proportion to "
-                        "its radiance")
+                        "its radiance; 'sky' for the package's procedural sky with a sun")
     r.add_argument("--spp", type=positive_int, default=64, metavar="N",
                    help="--environment: samples per pixel, each one of both strategies "
                         "(default 64); the output gives the estimate's standard error")
