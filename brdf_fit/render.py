@@ -132,45 +132,42 @@ def light_direction(zenith_deg: float, azimuth_deg: float = 0.0) -> np.ndarray:
     return np.array([math.sin(t) * math.cos(p), math.sin(t) * math.sin(p), math.cos(t)])
 
 
-def _sphere_normals(size: int):
-    """``(n, mask)``: the unit sphere's normal at each pixel centre, flattened row-major (row 0
-    at the top; ``(x, y, 0)`` clipped to the disc off the sphere), and the pixels on it."""
+def _sphere_pixels(size: int):
+    """``(frames, mask)``: each pixel centre's shading frame on the unit sphere, ``(size^2, 3,
+    3)`` flattened row-major (row 0 at the top), its rows the local axes ``s, t, n`` in world
+    coordinates (module docstring: ``s`` along the sphere's azimuth, Mitsuba's ``dp/du``; off
+    the sphere the normal of ``(x, y, 0)`` clipped to the disc), and the pixels on it."""
     c = (np.arange(size) + 0.5) / size * 2.0 - 1.0
     x = FRAME_HALF_WIDTH * c[None, :].repeat(size, 0)
     y = -FRAME_HALF_WIDTH * c[:, None].repeat(size, 1)
     r2 = x * x + y * y
     n = np.stack([x, y, np.sqrt(np.maximum(1.0 - r2, 0.0))], -1).reshape(-1, 3)
-    return n, (r2 < 1.0).reshape(-1)
-
-
-def _frames_of(n):
-    """``(P, 3, 3)``: each normal's shading frame, rows the local axes ``s, t, n`` in world
-    coordinates (module docstring: ``s`` along the sphere's azimuth, Mitsuba's ``dp/du``)."""
     s = np.stack([-n[:, 1], n[:, 0], np.zeros(len(n))], -1)
     norm = np.linalg.norm(s, axis=-1, keepdims=True)
     s = np.where(norm > 0.0, s / np.where(norm > 0.0, norm, 1.0), [1.0, 0.0, 0.0])
-    return np.stack([s, np.cross(n, s), n], 1)
+    return np.stack([s, np.cross(n, s), n], 1), (r2 < 1.0).reshape(-1)
 
 
-def _sphere_frames(size: int):
-    """``(size^2, 3, 3)``: the shading frame of every pixel (:func:`_frames_of`)."""
-    return _frames_of(_sphere_normals(size)[0])
+def _masked(wi, wo, m, cos_view):
+    """The ``(wi, wo, cos_i, mask, cos_view)`` of a geometry (:func:`sphere_geometry`,
+    :func:`plane_geometry`): the normal incidence pair where nothing is drawn, the light's
+    cosine (0 below the surface), ``cos_view`` 0 off the mask."""
+    up = np.array([0.0, 0.0, 1.0])
+    wi = np.where(m[:, None], wi, up)
+    wo = np.where(m[:, None], wo, up)
+    cos_i = np.where(m, np.maximum(wi[:, 2], 0.0), 0.0)
+    return wi, wo, cos_i, m, np.where(m, cos_view, 0.0)
 
 
 def sphere_geometry(size: int, light) -> tuple[np.ndarray, ...]:
     """``(wi, wo, cos_i, mask, cos_view)`` per pixel, flattened row-major (row 0 at the top):
     the light and camera directions in each hit point's shading frame (the normal incidence
     pair off the sphere, where nothing is drawn), the light's cosine (0 below the surface)."""
-    n, m = _sphere_normals(size)
-    frame = _frames_of(n)
+    frames, m = _sphere_pixels(size)
     light = np.asarray(light, float)
-    wi = frame @ (light / np.linalg.norm(light))
-    wo = frame @ np.array([0.0, 0.0, 1.0])
-    up = np.array([0.0, 0.0, 1.0])
-    wi = np.where(m[:, None], wi, up)
-    wo = np.where(m[:, None], wo, up)
-    cos_i = np.where(m, np.maximum(wi[:, 2], 0.0), 0.0)
-    return wi, wo, cos_i, m, np.where(m, n[:, 2], 0.0)
+    # the camera's direction (0, 0, 1) in each frame is the frame's third column
+    return _masked(frames @ (light / np.linalg.norm(light)), frames[:, :, 2], m,
+                   frames[:, 2, 2])
 
 
 def render_sphere(model, size: int = 256, light_zenith_deg: float = 45.0,
@@ -204,12 +201,9 @@ def plane_geometry(size: int, light, view_zenith_deg: float, fov_deg: float):
     dist = np.where(down, -origin[2] / np.where(down, d[:, 2], -1.0), 0.0)
     p = origin[None] + dist[:, None] * d
     m = down & (np.abs(p[:, 0]) <= PLANE_HALF_WIDTH) & (np.abs(p[:, 1]) <= PLANE_HALF_WIDTH)
-    zup = np.array([0.0, 0.0, 1.0])
     light = np.asarray(light, float)
-    wi = np.where(m[:, None], light / np.linalg.norm(light), zup)
-    wo = np.where(m[:, None], -d, zup)
-    cos_i = np.where(m, np.maximum(wi[:, 2], 0.0), 0.0)
-    return wi, wo, cos_i, m, np.where(m, wo[:, 2], 0.0)
+    wi = np.broadcast_to(light / np.linalg.norm(light), d.shape)
+    return _masked(wi, -d, m, -d[:, 2])
 
 
 def render_plane(model, size: int = 256, view_zenith_deg: float = 80.0, fov_deg: float = 30.0,
@@ -341,8 +335,9 @@ def render_sphere_environment(model, size: int = 128, radiance=1.0, samples_per_
     if getattr(model, "is_delta", False):
         raise ValueError("render: a model with a delta lobe has no density for an environment "
                          "estimate")
-    _, wo, _, m, cos_view = sphere_geometry(int(size), np.array([0.0, 0.0, 1.0]))
-    frames = _sphere_frames(int(size))
+    frames, m = _sphere_pixels(int(size))
+    wo = frames[:, :, 2]  # the camera's direction in each frame (read on the sphere only)
+    cos_view = np.where(m, frames[:, 2, 2], 0.0)
     on = np.flatnonzero(m)
     dtype = jnp.zeros(()).dtype
     scale = np.asarray(radiance, float).reshape(-1)
