@@ -64,18 +64,10 @@ def test_black_model_renders_black_and_nothing_off_the_sphere():
     np.testing.assert_array_equal(img.mask, c[None, :] ** 2 + c[:, None] ** 2 < 1.0)
 
 
-def _mitsuba_sphere(mi, bsdf: dict, size: int, light, irradiance: float) -> np.ndarray:
-    T = mi.ScalarTransform4f
-    scene = mi.load_dict({
-        "type": "scene",
-        "sensor": {"type": "orthographic",
-                   "to_world": T().look_at(origin=[0, 0, 5], target=[0, 0, 0], up=[0, 1, 0])
-                   @ T().scale([FRAME_HALF_WIDTH, FRAME_HALF_WIDTH, 1]),
-                   "film": {"type": "hdrfilm", "width": size, "height": size}},
-        "sphere": {"type": "sphere", "bsdf": bsdf},
-        "light": {"type": "directional", "direction": [float(-x) for x in light],
-                  "irradiance": {"type": "rgb", "value": float(irradiance)}},
-    })
+def _mitsuba_at_pixel_centres(mi, scene, size: int):
+    """``(radiance, hit)`` of a Mitsuba 3 scene under a directional light through its sensor's
+    rays at the pixel centres: its intersection, emitter sampling and BSDF (what its ``direct``
+    integrator computes per sample, without the pixel jitter)."""
     sensor = scene.sensors()[0]
     ctx = mi.BSDFContext()
     out = np.zeros((size, size, 3))
@@ -92,6 +84,21 @@ def _mitsuba_sphere(mi, bsdf: dict, size: int, light, irradiance: float) -> np.n
             v = si.bsdf().eval(ctx, si, si.to_local(ds.d)) * spec
             out[r, c] = [v[0], v[1], v[2]]
     return out, hit
+
+
+def _mitsuba_sphere(mi, bsdf: dict, size: int, light, irradiance: float) -> np.ndarray:
+    T = mi.ScalarTransform4f
+    scene = mi.load_dict({
+        "type": "scene",
+        "sensor": {"type": "orthographic",
+                   "to_world": T().look_at(origin=[0, 0, 5], target=[0, 0, 0], up=[0, 1, 0])
+                   @ T().scale([FRAME_HALF_WIDTH, FRAME_HALF_WIDTH, 1]),
+                   "film": {"type": "hdrfilm", "width": size, "height": size}},
+        "sphere": {"type": "sphere", "bsdf": bsdf},
+        "light": {"type": "directional", "direction": [float(-x) for x in light],
+                  "irradiance": {"type": "rgb", "value": float(irradiance)}},
+    })
+    return _mitsuba_at_pixel_centres(mi, scene, size)
 
 
 @pytest.mark.parametrize("name", ["mitsuba-roughconductor", "mitsuba-roughplastic"])
@@ -136,22 +143,7 @@ def _mitsuba_plane(mi, bsdf: dict, size: int, light, irradiance: float, view_zen
         "light": {"type": "directional", "direction": [float(-x) for x in light],
                   "irradiance": {"type": "rgb", "value": float(irradiance)}},
     })
-    sensor = scene.sensors()[0]
-    ctx = mi.BSDFContext()
-    out = np.zeros((size, size, 3))
-    hit = np.zeros((size, size), bool)
-    for r in range(size):
-        for c in range(size):
-            ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f((c + 0.5) / size, (r + 0.5) / size),
-                                       mi.Point2f(0.5, 0.5))
-            si = scene.ray_intersect(ray)
-            if not si.is_valid():
-                continue
-            hit[r, c] = True
-            ds, spec = scene.sample_emitter_direction(si, mi.Point2f(0.5, 0.5), True)
-            v = si.bsdf().eval(ctx, si, si.to_local(ds.d)) * spec
-            out[r, c] = [v[0], v[1], v[2]]
-    return out, hit
+    return _mitsuba_at_pixel_centres(mi, scene, size)
 
 
 @pytest.mark.parametrize("name, params", [
@@ -389,6 +381,34 @@ def test_environment_compiles_once_and_refuses_a_delta_lobe():
 
 
 @pytest.mark.slow
+def _mitsuba_environment_scene(mi, bsdf: dict, emitter: dict, size: int):
+    """The sphere lit by ``emitter`` in Mitsuba 3: its ``direct`` integrator (emitter and BSDF
+    samples, MIS), jittered samples over each pixel's area (box filter)."""
+    T = mi.ScalarTransform4f
+    return mi.load_dict({
+        "type": "scene", "integrator": {"type": "direct"},
+        "sensor": {"type": "orthographic",
+                   "to_world": T().look_at(origin=[0, 0, 5], target=[0, 0, 0], up=[0, 1, 0])
+                   @ T().scale([FRAME_HALF_WIDTH, FRAME_HALF_WIDTH, 1]),
+                   "film": {"type": "hdrfilm", "width": size, "height": size,
+                            "rfilter": {"type": "box"}},
+                   "sampler": {"type": "independent"}},
+        "sphere": {"type": "sphere", "bsdf": bsdf},
+        "light": emitter})
+
+
+def _ours_over_mitsuba_pixels(big, size: int):
+    """``(radiance, stderr, inner)`` of our render at 4 x 4 sub-pixels of each of Mitsuba's
+    ``size`` x ``size`` pixels (it averages a pixel's area), averaged; ``inner``: the pixels
+    wholly on the sphere and away from its rim."""
+    ours = big.radiance[..., :3].reshape(size, 4, size, 4, 3).mean((1, 3))
+    se = np.sqrt((big.stderr[..., :3] ** 2).reshape(size, 4, size, 4, 3).sum((1, 3))) / 16
+    c = ((np.arange(size) + 0.5) / size * 2 - 1) * FRAME_HALF_WIDTH
+    inner = big.mask.reshape(size, 4, size, 4).all((1, 3)) & (
+        1 - c[None, :] ** 2 - c[:, None] ** 2 > 0.04)
+    return ours, se, inner
+
+
 def test_environment_matches_mitsuba_within_noise():
     """Mitsuba 3 renders the same sphere under its ``constant`` emitter with its ``direct``
     integrator (emitter and BSDF samples, MIS), 1024 jittered samples per pixel, twice with two
@@ -400,31 +420,17 @@ def test_environment_matches_mitsuba_within_noise():
     from brdf_fit.render import render_sphere_environment
 
     mi.set_variant(VARIANT)
-    T = mi.ScalarTransform4f
     size = 24
     for name in ("mitsuba-roughconductor", "mitsuba-roughplastic"):
         params = {"alpha": 0.2}
-        scene = mi.load_dict({
-            "type": "scene", "integrator": {"type": "direct"},
-            "sensor": {"type": "orthographic",
-                       "to_world": T().look_at(origin=[0, 0, 5], target=[0, 0, 0],
-                                               up=[0, 1, 0])
-                       @ T().scale([FRAME_HALF_WIDTH, FRAME_HALF_WIDTH, 1]),
-                       "film": {"type": "hdrfilm", "width": size, "height": size,
-                                "rfilter": {"type": "box"}},
-                       "sampler": {"type": "independent"}},
-            "sphere": {"type": "sphere", "bsdf": to_mitsuba(name, params, verify=False)
-                       .scene_dict},
-            "light": {"type": "constant", "radiance": {"type": "rgb", "value": 1.0}}})
+        scene = _mitsuba_environment_scene(
+            mi, to_mitsuba(name, params, verify=False).scene_dict,
+            {"type": "constant", "radiance": {"type": "rgb", "value": 1.0}}, size)
         r1 = np.asarray(mi.render(scene, spp=1024, seed=1))[..., :3]
         r2 = np.asarray(mi.render(scene, spp=1024, seed=2))[..., :3]
-        big = render_sphere_environment(registry.get(name).build(**params), 4 * size,
-                                        samples_per_pixel=16)
-        ours = big.radiance[..., :3].reshape(size, 4, size, 4, 3).mean((1, 3))
-        se = np.sqrt((big.stderr[..., :3] ** 2).reshape(size, 4, size, 4, 3).sum((1, 3))) / 16
-        c = ((np.arange(size) + 0.5) / size * 2 - 1) * FRAME_HALF_WIDTH
-        inner = big.mask.reshape(size, 4, size, 4).all((1, 3)) & (
-            1 - c[None, :] ** 2 - c[:, None] ** 2 > 0.04)
+        ours, se, inner = _ours_over_mitsuba_pixels(
+            render_sphere_environment(registry.get(name).build(**params), 4 * size,
+                                      samples_per_pixel=16), size)
         mitsuba_var = np.mean(((r1 - r2)[inner] / 2) ** 2)  # of the pair's mean, pooled
         z = (ours - 0.5 * (r1 + r2))[inner] / np.sqrt(se[inner] ** 2 + mitsuba_var)
         assert 0.8 < np.sqrt(np.mean(z * z)) < 1.25 and abs(z.mean()) < 0.2, (name, z.mean(),
@@ -501,30 +507,18 @@ def test_latlong_environment_matches_mitsuba_within_noise():
     from brdf_fit.render import render_sphere_environment
 
     mi.set_variant(VARIANT)
-    T = mi.ScalarTransform4f
     size = 24
     tex = _latlong_texels()
     name, params = "mitsuba-roughconductor", {"alpha": 0.3}
-    scene = mi.load_dict({
-        "type": "scene", "integrator": {"type": "direct"},
-        "sensor": {"type": "orthographic",
-                   "to_world": T().look_at(origin=[0, 0, 5], target=[0, 0, 0], up=[0, 1, 0])
-                   @ T().scale([FRAME_HALF_WIDTH, FRAME_HALF_WIDTH, 1]),
-                   "film": {"type": "hdrfilm", "width": size, "height": size,
-                            "rfilter": {"type": "box"}},
-                   "sampler": {"type": "independent"}},
-        "sphere": {"type": "sphere", "bsdf": to_mitsuba(name, params, verify=False).scene_dict},
-        "light": {"type": "envmap", "bitmap": mi.Bitmap(tex.astype(np.float32))}})
+    scene = _mitsuba_environment_scene(
+        mi, to_mitsuba(name, params, verify=False).scene_dict,
+        {"type": "envmap", "bitmap": mi.Bitmap(tex.astype(np.float32))}, size)
     runs = np.stack([np.asarray(mi.render(scene, spp=1024, seed=k))[..., :3]
                      for k in range(1, 5)])
-    big = render_sphere_environment(registry.get(name).build(**params), 4 * size,
-                                    samples_per_pixel=16,
-                                    environment=LatLongEnvironment.of(tex))
-    ours = big.radiance[..., :3].reshape(size, 4, size, 4, 3).mean((1, 3))
-    se = np.sqrt((big.stderr[..., :3] ** 2).reshape(size, 4, size, 4, 3).sum((1, 3))) / 16
-    c = ((np.arange(size) + 0.5) / size * 2 - 1) * FRAME_HALF_WIDTH
-    inner = big.mask.reshape(size, 4, size, 4).all((1, 3)) & (
-        1 - c[None, :] ** 2 - c[:, None] ** 2 > 0.04)
+    ours, se, inner = _ours_over_mitsuba_pixels(
+        render_sphere_environment(registry.get(name).build(**params), 4 * size,
+                                  samples_per_pixel=16, environment=LatLongEnvironment.of(tex)),
+        size)
     # the map's bright patch makes the noise differ from pixel to pixel: Mitsuba's own, of
     # the four runs' mean, per pixel from their spread
     mitsuba_var = runs.var(0, ddof=1) / len(runs)
