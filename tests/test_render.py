@@ -380,7 +380,6 @@ def test_environment_compiles_once_and_refuses_a_delta_lobe():
         render_sphere_environment(registry.get("mirror").build(), 16)
 
 
-@pytest.mark.slow
 def _mitsuba_environment_scene(mi, bsdf: dict, emitter: dict, size: int):
     """The sphere lit by ``emitter`` in Mitsuba 3: its ``direct`` integrator (emitter and BSDF
     samples, MIS), jittered samples over each pixel's area (box filter)."""
@@ -409,6 +408,7 @@ def _ours_over_mitsuba_pixels(big, size: int):
     return ours, se, inner
 
 
+@pytest.mark.slow
 def test_environment_matches_mitsuba_within_noise():
     """Mitsuba 3 renders the same sphere under its ``constant`` emitter with its ``direct``
     integrator (emitter and BSDF samples, MIS), 1024 jittered samples per pixel, twice with two
