@@ -13,7 +13,8 @@ in ``Py_FinalizeEx`` destroying ``PjRtClient`` and the crashed thread in
 The program here swaps ``brdf-fit models``' run for one that compiles a program XLA takes over a
 second to compile (1.7 s on 2 AMD EPYC cores) and sends itself SIGINT 0.25 s into the compile.
 The negative control runs the same command through ``sys.exit(main(...))``, the shutdown the
-program had before, on a longer compile (:data:`CONTROL_STEPS`), and crashes.
+program had before, on a longer compile (:data:`CONTROL_STEPS`), and crashes (in one of
+:data:`CONTROL_TRIES` tries: a race).
 """
 
 import os
@@ -81,11 +82,24 @@ def test_a_command_stopped_while_compiling_exits_130():
     assert p.stderr.strip().splitlines()[-1] == "brdf-fit: interrupted", p.stderr[-2000:]
 
 
+#: the negative control's tries: the crash is a race between the interpreter's shutdown and the
+#: compiling thread. Idle, and beside two busy-looping processes, 12 of 12 tries crashed here
+#: (Sapphire Rapids, 2 cores); in CI's slow set one try in one run ended 130 without a crash
+#: (2026-12-07), so the control asks for a crash in any of this many tries (a try that crashes
+#: ends the loop: one try, 4 s, in the usual case)
+CONTROL_TRIES = 4
+
+
 @pytest.mark.slow
 def test_negative_control_the_normal_shutdown_crashes():
     """If this starts passing, jaxlib no longer crashes here: run()'s os._exit can go (and
     this control with it)."""
-    p = _stopped_mid_compile("sys.exit(main(['models']))", CONTROL_STEPS)
-    assert "compiled before the signal" not in p.stdout
-    assert "brdf-fit: interrupted" in p.stderr  # the command itself stopped as it should
-    assert p.returncode == -11, (p.returncode, p.stderr[-2000:])
+    statuses = []
+    for _ in range(CONTROL_TRIES):
+        p = _stopped_mid_compile("sys.exit(main(['models']))", CONTROL_STEPS)
+        assert "compiled before the signal" not in p.stdout
+        assert "brdf-fit: interrupted" in p.stderr  # the command itself stopped as it should
+        statuses.append(p.returncode)
+        if p.returncode == -11:
+            break
+    assert statuses[-1] == -11, (statuses, p.stderr[-2000:])
