@@ -53,6 +53,7 @@ from brdf_fit.models import (
     mitsuba,
     mitsuba_principled,
     neumann,
+    openpbr,
     oren_nayar,
     phong,
     phong_normalized,
@@ -462,9 +463,9 @@ for _module in FAMILY_MODULES:
 
 #: renderer-native entries (``Entry.target``, tag ``"native"``): transcriptions of what a
 #: renderer or format itself computes, so that a fit in one exports to it with no loss
-NATIVE_MODULES = (mitsuba, mitsuba_principled, gltf_pbr, blender_principled)
+NATIVE_MODULES = (mitsuba, mitsuba_principled, gltf_pbr, blender_principled, openpbr)
 
 for _entry in (*mitsuba.registry_entries(_gold_eta, _gold_k),
                *mitsuba_principled.registry_entries(), *gltf_pbr.registry_entries(),
-               *blender_principled.registry_entries()):
+               *blender_principled.registry_entries(), *openpbr.registry_entries()):
     register(_entry)

@@ -1,5 +1,5 @@
-"""Writing a fitted model for a renderer (``fit --export``, ``select --mitsuba/--gltf/--blender``):
-the target's own models, the export kind from the file's extension, the write itself."""
+"""Writing a fitted model for a renderer (``fit --export``, ``select --mitsuba/--gltf/--blender/
+--mtlx``): the target's own models, the export kind from the file's extension, the write itself."""
 
 from __future__ import annotations
 
@@ -13,7 +13,8 @@ from brdf_fit.cli._common import (
 )
 
 #: export targets by output extension
-EXPORT_EXT = {".xml": "mitsuba", ".gltf": "gltf", ".py": "blender", ".blend": "blender"}
+EXPORT_EXT = {".xml": "mitsuba", ".gltf": "gltf", ".py": "blender", ".blend": "blender",
+              ".mtlx": "openpbr"}
 
 
 def target_entry(reg, model: str, target: str | None):
@@ -50,7 +51,8 @@ def export_kind(path: str | None, target: str | None) -> str | None:
     kind = EXPORT_EXT.get(ext)
     if kind is None:
         raise CLIError(f"--export: {path!r} must end in .xml (Mitsuba 3), .gltf (glTF 2.0), .py "
-                       "(a Blender script) or .blend (a Blender file)")
+                       "(a Blender script), .blend (a Blender file) or .mtlx (a MaterialX OpenPBR "
+                       "document)")
     if target is not None and kind != target:
         raise CLIError(f"--export {path}: a {ext} file is a {kind} export, but --target is "
                        f"{target}")
@@ -84,6 +86,14 @@ def write_export(kind: str, path: str, model: str, params: dict, data, name: str
             cb.write_blender(path, [e], what=f"brdf_fit fit: {model} fitted to {name}")
         except (cb.ExportError, cb.BlenderNotFound, RuntimeError, ValueError) as exc:
             raise CLIError(str(exc)) from None  # the caller's flag goes before it
+    elif kind == "openpbr":
+        from brdf_fit.convert import materialx as cx
+
+        try:
+            e = cx.to_materialx(model, p, name)
+            cx.write_mtlx(path, [e], what=f"{model} fitted to {name}")
+        except (cx.ExportError, ValueError) as exc:
+            raise CLIError(f"--export: {exc}") from None
     else:
         from brdf_fit.convert import gltf as cg
 

@@ -176,7 +176,8 @@ def run(args) -> int:
         outs.write("--export", args.export, lambda: exported.append(write_export(
             kind, args.export, entry.name, result.params, data,
             name=os.path.splitext(os.path.basename(args.data))[0])),
-            also=(CLIError,) if kind == "blender" else ())  # e.g. a .blend without Blender
+            also=(CLIError,) if kind in ("blender", "openpbr") else ())  # e.g. a .blend
+        # without Blender, a model the target does not hold: the fit is printed all the same
     exported = exported[0] if exported else None
     if args.report is not None:
         outs.write("--report", args.report, lambda: _write_report(args, result, data, exported))
@@ -228,14 +229,16 @@ def add_parser(sub) -> None:
     f.add_argument("--check", action="append", metavar="NAME",
                    help="run this check on the fitted model (repeatable)")
     f.add_argument("--target", default=None, metavar="T",
-                   help="mitsuba, gltf or blender: fit a model the target holds as fitted (a "
-                        "native entry; a bare name like roughplastic means mitsuba-roughplastic, "
-                        "principled with --target blender blender-principled)")
+                   help="mitsuba, gltf, blender or openpbr: fit a model the target holds as "
+                        "fitted (a native entry; a bare name like roughplastic means "
+                        "mitsuba-roughplastic, principled with --target blender "
+                        "blender-principled, surface with --target openpbr openpbr-surface)")
     f.add_argument("--export", default=None, metavar="OUT",
                    help="write the fitted model for a renderer: .xml (Mitsuba 3 scene with one "
                         "bsdf) or .gltf (glTF 2.0 material), checked by round trip on the data; "
-                        ".py (a Blender script making a Principled BSDF material) or .blend "
-                        "(needs Blender's Python: make blender)")
+                        ".py (a Blender script making a Principled BSDF material), .blend "
+                        "(needs Blender's Python: make blender) or .mtlx (a MaterialX document "
+                        "of an OpenPBR Surface material)")
     f.add_argument("--report", default=None, metavar="OUT.html",
                    help="one self-contained HTML page: parameters with 95%% intervals, where "
                         "the misfit is, the fit rendered (MERL data also rendered from "

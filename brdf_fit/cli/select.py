@@ -58,6 +58,8 @@ def run(args) -> int:
         check_output_file(args.blender, (".py", ".blend"), "--blender")
     if args.blend is not None:
         check_output_file(args.blend, (".blend",), "--blend")
+    if args.mtlx is not None:
+        check_output_file(args.mtlx, (".mtlx",), "--mtlx")
     reg = load_registry()
     names = None
     if args.candidates is not None and args.family is not None:
@@ -105,13 +107,14 @@ def run(args) -> int:
         for flag, kind, path in (("--mitsuba", "mitsuba", args.mitsuba),
                                  ("--gltf", "gltf", args.gltf),
                                  ("--blender", "blender", args.blender),
-                                 ("--blend", "blender", args.blend)):
+                                 ("--blend", "blender", args.blend),
+                                 ("--mtlx", "openpbr", args.mtlx)):
             if path is not None:
                 # a Blender export that cannot be made (a .blend without Blender's Python, a
                 # choice that is no Blender entry) is reported after the selection
                 outs.write(flag, path, lambda kind=kind, path=path: exports.append(
                     write_export(kind, path, chosen, sel.candidate(chosen).params, data, name)),
-                    also=(CLIError,) if kind == "blender" else ())
+                    also=(CLIError,) if kind in ("blender", "openpbr") else ())
     doc["exports"] = exports
     if args.report is not None and outs.write(
             "--report", args.report, lambda: _write_report(args, sel, data, exports)):
@@ -244,6 +247,9 @@ def _select_scene(args, names, checks) -> int:
 
             outs.write(flag, path, lambda path=path: sc.export_scene(res, blender_path=path),
                        also=(BlenderNotFound, RuntimeError, ValueError))
+    if args.mtlx is not None:
+        outs.write("--mtlx", args.mtlx, lambda: sc.export_scene(res, mtlx_path=args.mtlx),
+                   also=(ValueError,))
     doc = res.to_dict()
     if args.plot is not None:
         from brdf_fit.plot import scene_front
@@ -316,6 +322,10 @@ def add_parser(sub) -> None:
     se.add_argument("--blend", default=None, metavar="OUT.blend",
                     help="the same materials saved in a .blend file (needs Blender's Python: "
                          "make blender); may be given beside --blender OUT.py")
+    se.add_argument("--mtlx", default=None, metavar="OUT.mtlx",
+                    help="write the chosen material(s) as a MaterialX document of OpenPBR "
+                         "Surface materials; the choice must be an openpbr entry (--target "
+                         "openpbr)")
     se.add_argument("--skip-bad", action="store_true",
                     help="with --scene: list bad materials and select the others")
     se.add_argument("--candidates", default=None, metavar="A,B,...",
@@ -330,7 +340,8 @@ def add_parser(sub) -> None:
                          "best candidate's error, at least 1.5x the noise level with sigma, "
                          "at least 0.01)")
     se.add_argument("--target", default=None, metavar="T",
-                    help="mitsuba, gltf or blender: select among the models the target holds as "
+                    help="mitsuba, gltf, blender or openpbr: select among the models the target "
+                         "holds as "
                          "fitted (its native entries), so the export is the fit itself")
     se.add_argument("--ceiling", type=float, default=None, metavar="E",
                     help="error above which no candidate represents the material (default: "

@@ -43,7 +43,7 @@ FAMILIES = {
 
 
 #: renderers and formats a selection can target
-TARGETS = ("mitsuba", "gltf", "blender")
+TARGETS = ("mitsuba", "gltf", "blender", "openpbr")
 #: the default candidates of a target: its native entries, cheap to costly (anisotropic ones
 #: join when the data show anisotropy: :data:`ANISOTROPIC_CANDIDATES`)
 TARGET_CANDIDATES = {
@@ -54,6 +54,7 @@ TARGET_CANDIDATES = {
     "gltf": ("lambert", "gltf-pbr", "gltf-pbr-specular", "gltf-pbr-clearcoat",
              "gltf-pbr-sheen"),
     "blender": ("blender-principled", "blender-principled-coat", "blender-principled-sheen"),
+    "openpbr": ("openpbr-surface", "openpbr-surface-coat", "openpbr-surface-fuzz"),
 }
 #: the candidates added when :func:`~brdf_fit.selection.anisotropy.detect_anisotropy` finds
 #: anisotropy (key None: no target)
@@ -63,6 +64,7 @@ ANISOTROPIC_CANDIDATES = {
                 "mitsuba-principled-aniso"),
     "gltf": ("gltf-pbr-anisotropy",),
     "blender": ("blender-principled-aniso",),
+    "openpbr": ("openpbr-surface-aniso",),
 }
 #: entries of the literature a target holds exactly (besides the target's native entries):
 #: Lambert is Mitsuba's ``diffuse`` and glTF's dielectric with ``specularFactor`` 0; glTF's
@@ -71,6 +73,7 @@ EXACT_EXPORTS = {
     "mitsuba": ("lambert", "ggx-separable"),
     "gltf": ("lambert", "ggx"),
     "blender": (),
+    "openpbr": (),
 }
 
 

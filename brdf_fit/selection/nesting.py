@@ -96,6 +96,10 @@ NESTED: dict[str, tuple[str, dict]] = {
                                                        "coat_ior": 1.5}),
     "blender-principled-sheen": ("blender-principled", {"sheen_weight": 0.0,
                                                         "sheen_roughness": 0.5}),
+    "openpbr-surface-aniso": ("openpbr-surface", {"specular_roughness_anisotropy": 0.0}),
+    "openpbr-surface-coat": ("openpbr-surface", {"coat_weight": 0.0, "coat_roughness": 0.0,
+                                                 "coat_ior": 1.6}),
+    "openpbr-surface-fuzz": ("openpbr-surface", {"fuzz_weight": 0.0, "fuzz_roughness": 0.5}),
     "ggx-aniso": ("ggx", _ISO),
     "ggx-conductor-aniso": ("ggx-conductor", _ISO),
 }

@@ -541,12 +541,14 @@ def _export_each(result: SceneSelection, target: str, export, error_type, extra=
 
 
 def export_scene(result: SceneSelection, gltf_path=None, mitsuba_path=None,
-                 blender_path=None) -> list[str]:
+                 blender_path=None, mtlx_path=None) -> list[str]:
     """Write the scene's chosen materials as a glTF 2.0 document (``gltf_path``, materials only:
     :func:`brdf_fit.convert.gltf.to_gltf`) and as a Mitsuba 3 scene of ``<bsdf>`` elements
     (``mitsuba_path``: :func:`brdf_fit.convert.mitsuba.to_mitsuba`) and for Blender
     (``blender_path``: a material script or a .blend, :func:`brdf_fit.convert.blender
-    .to_blender`; only ``blender-principled*`` choices). Each export's method and
+    .to_blender`; only ``blender-principled*`` choices) and as a MaterialX document
+    (``mtlx_path``: :func:`brdf_fit.convert.materialx.to_materialx`; only ``openpbr-surface*``
+    choices). Each export's method and
     its radiance error against the chosen model, measured on the material's own samples, is
     recorded in the material's ``exports``; a model a target cannot hold is recorded there as
     ``failed`` (the other materials are still written). Returns the paths written."""
@@ -573,4 +575,11 @@ def export_scene(result: SceneSelection, gltf_path=None, mitsuba_path=None,
         cb.write_blender(blender_path, [e for _, e in done],
                          what=f"brdf_fit select, scene {os.path.basename(result.scene.path)}")
         written.append(str(blender_path))
+    if mtlx_path is not None:
+        from brdf_fit.convert import materialx as cx
+
+        done = _export_each(result, "openpbr", cx.to_materialx, cx.ExportError)
+        cx.write_mtlx(mtlx_path, [e for _, e in done],
+                      what=f"brdf_fit select, scene {os.path.basename(result.scene.path)}")
+        written.append(str(mtlx_path))
     return written

@@ -9,13 +9,12 @@ import ast
 import math
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from brdf_fit.convert import blender as cb
-from brdf_fit.models import astype
 from brdf_fit.models.blender_principled import BlenderPrincipled
+from tests._helpers import float32_spread
 
 jax.config.update("jax_enable_x64", True)
 
@@ -113,38 +112,18 @@ PARITY_ABS = 1e-6
 
 #: float32's unit roundoff: Cycles traces and shades in float32
 EPS32 = float(np.finfo(np.float32).eps)
-#: the size of the float32 perturbations of the directions in :func:`_float32_spread` (in
+#: the size of the float32 perturbations of the directions in :func:`float32_spread` (in
 #: units of EPS32 per component): Cycles' directions reach the shader through a rotation to
 #: world space, a camera ray and a light direction (an Euler angle), a few roundings each
 ROUNDINGS = 4.0
 
 
-def _float32_spread(model, wi, wo, draws=8, seed=0):
-    """How much the model's value moves when the directions move by float32 rounding: the
-    largest relative change over ``draws`` random perturbations of ``ROUNDINGS`` EPS32 per
-    component (absolute: a unit vector's rounding is relative to its length, not to a small
-    component). At grazing, a cosine of 1e-3 then moves by 5e-4 of itself: the sun's direction
-    comes from a float32 angle near pi (ulp 2.4e-7) when the light and the view are on opposite
-    horizons, and Cycles' value at such a pair is that far from the exact one (measured 2.7e-4
-    at cos 1e-3 for both, mirror azimuths)."""
-    rng = np.random.default_rng(seed)
-    base = np.asarray(model.eval(wi, wo))
-    worst = np.zeros(base.shape[0])
-    for _ in range(draws):
-        def jitter(w):
-            w = w + ROUNDINGS * EPS32 * rng.uniform(-1.0, 1.0, w.shape)
-            return w / np.linalg.norm(w, axis=-1, keepdims=True)
-
-        moved = np.asarray(model.eval(jitter(wi), jitter(wo)))
-        rel = np.abs(moved - base) / np.maximum(np.abs(base), 1e-300)
-        worst = np.maximum(worst, rel.max(axis=-1))
-    # and the model's own float32 arithmetic: at a near-mirror grazing pair h = wi + wo keeps
-    # 5e-5 of its tangential components after cancellation, which float32 resolves to 0.2%;
-    # a sharp lobe (alpha 1e-3) turns that into a percent of D
-    m32 = astype(model, jnp.float32)
-    v32 = np.asarray(m32.eval(jnp.asarray(wi, jnp.float32), jnp.asarray(wo, jnp.float32)))
-    rel = np.abs(v32 - base) / np.maximum(np.abs(base), 1e-300)
-    return np.maximum(worst, rel.max(axis=-1))
+def _float32_spread(model, wi, wo):
+    """:func:`float32_spread` with :data:`ROUNDINGS`. At grazing, a cosine of 1e-3 moves by
+    5e-4 of itself: the sun's direction comes from a float32 angle near pi (ulp 2.4e-7) when
+    the light and the view are on opposite horizons, and Cycles' value at such a pair is that
+    far from the exact one (measured 2.7e-4 at cos 1e-3 for both, mirror azimuths)."""
+    return float32_spread(model, wi, wo, ROUNDINGS)
 
 
 def _cycles_d_rounding(model, wi, wo):

@@ -32,6 +32,8 @@ BASE_VALUES = {
     "ggx-conductor": {"alpha": 0.23},
     "blender-principled": {"base_color": np.array([0.7, 0.2, 0.1]), "roughness": 0.45,
                            "metallic": 0.3, "ior": 1.6},
+    "openpbr-surface": {"base_color": np.array([0.7, 0.2, 0.1]), "specular_roughness": 0.45,
+                        "base_metalness": 0.3, "specular_ior": 1.6},
 }
 
 

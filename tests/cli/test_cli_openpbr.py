@@ -1,0 +1,89 @@
+"""The OpenPBR target on the command line: fit --target openpbr --export F.mtlx, select --target
+openpbr --mtlx F.mtlx (the red plastic of issue 42 takes no coat or fuzz lobe), and the
+document's validity where MaterialX is installed."""
+
+from __future__ import annotations
+
+import json
+import xml.etree.ElementTree as ET
+
+import jax
+import numpy as np
+import pytest
+
+from brdf_fit import registry
+from brdf_fit.cli import main
+from brdf_fit.convert import materialx as cx
+from brdf_fit.data import GonioData
+from brdf_fit.io.npz import write_npz
+
+jax.config.update("jax_enable_x64", True)
+
+TRUTH = {"base_color": np.array([0.8, 0.05, 0.05]), "specular_roughness": 0.35,
+         "base_metalness": 0.0, "specular_ior": 1.5}
+
+
+@pytest.fixture(scope="module")
+def plastic(tmp_path_factory):
+    """A red plastic as openpbr-surface evaluates it (1% noise) at 400 random pairs."""
+    rng = np.random.default_rng(5)
+
+    def dirs(n):
+        mu = rng.uniform(0.05, 1.0, n)
+        phi = rng.uniform(0.0, 2.0 * np.pi, n)
+        s = np.sqrt(1.0 - mu * mu)
+        return np.stack([s * np.cos(phi), s * np.sin(phi), mu], -1)
+
+    wi, wo = dirs(400), dirs(400)
+    f = np.asarray(registry.get("openpbr-surface").build(**TRUTH).eval(wi, wo))
+    f = f * (1.0 + 0.01 * rng.standard_normal(f.shape))
+    path = tmp_path_factory.mktemp("openpbr") / "red_plastic.npz"
+    write_npz(GonioData(wi=wi, wo=wo, value=f, channels=("R", "G", "B")), path)
+    return path
+
+
+def _inputs(path, material):
+    root = ET.parse(path).getroot()
+    mat = root.find(f"surfacematerial[@name='{material}']")
+    shader = root.find(f"open_pbr_surface[@name='{mat[0].get('nodename')}']")
+    return {i.get("name"): [float(x) for x in i.get("value").split(",")] for i in shader}
+
+
+def test_fit_for_openpbr_writes_the_mtlx_document(plastic, tmp_path, capsys):
+    out = tmp_path / "fit.mtlx"
+    assert main(["fit", str(plastic), "--target", "openpbr", "--model", "surface",
+                 "--export", str(out), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["model"] == "openpbr-surface" and doc["converged"]
+    inputs = _inputs(out, "red_plastic")
+    assert np.allclose(inputs["base_color"], TRUTH["base_color"], atol=0.01)
+    assert abs(inputs["specular_roughness"][0] - 0.35) < 0.01
+    assert inputs["base_metalness"][0] < 1e-3
+    try:
+        import MaterialX  # noqa: F401
+    except ImportError:
+        return
+    assert cx.validate_mtlx(out.read_text(encoding="utf-8")) == (True, "")
+
+
+def test_select_for_openpbr_takes_no_coat_or_fuzz_on_a_plastic(plastic, tmp_path, capsys):
+    """The issue's red plastic: the OpenPBR candidates are the base and its coated and fuzzy
+    extensions; neither lobe stands for anything there and neither is taken."""
+    out = tmp_path / "chosen.mtlx"
+    rc = main(["select", str(plastic), "--target", "openpbr", "--mtlx", str(out), "--no-checks",
+               "--json"])
+    captured = capsys.readouterr()
+    doc = json.loads(captured.out)
+    assert rc == 0, captured.err
+    assert doc["choice"] == "openpbr-surface"
+    assert [e["target"] for e in doc["exports"]] == ["openpbr"]
+    assert set(_inputs(out, "red_plastic")) == set(TRUTH)
+
+
+def test_an_mtlx_export_of_another_target_is_refused(plastic, tmp_path, capsys):
+    rc = main(["fit", str(plastic), "--model", "ggx", "--export", str(tmp_path / "m.mtlx")])
+    captured = capsys.readouterr()
+    assert rc == 1
+    assert "converged: yes" in captured.out  # the fit is printed
+    assert "openpbr-surface" in captured.err  # the message names the entries that export
+    assert not (tmp_path / "m.mtlx").exists()
