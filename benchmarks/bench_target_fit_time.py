@@ -1,7 +1,7 @@
 """Time per fit of each renderer target's native entries: the "time per fit" column of the
 targets table in docs/guide/renderers.md (issue 42).
 
-    python benchmarks/bench_target_fit_time.py [--out DIR] [--targets mitsuba,gltf,blender]
+    python benchmarks/bench_target_fit_time.py [--out DIR] [--targets mitsuba,gltf,blender,openpbr]
 
 For every registry entry native to a target (``Entry.target``), in a fresh process per target
 (no persistent compilation cache: the library leaves it off; the CLI's XLA options,
@@ -38,6 +38,8 @@ MATERIAL = {
     "anisotropy_strength": 0.6, "anisotropy_rotation": 0.4, "sheen_color": (0.3, 0.2, 0.1),
     "sheen_roughness": 0.4, "clearcoat_roughness": 0.1, "ior": 1.45, "coat_weight": 1.0,
     "coat_roughness": 0.1, "coat_ior": 1.5, "sheen_weight": 1.0,
+    "base_metalness": 0.3, "specular_roughness": 0.35, "specular_ior": 1.45,
+    "specular_roughness_anisotropy": 0.5, "fuzz_weight": 0.8, "fuzz_roughness": 0.4,
 }
 #: parameters set to this factor x their default
 SCALED = {"eta": 0.9, "k": 0.9}
@@ -96,7 +98,7 @@ def _one_target(target: str) -> list[dict]:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--out", default=str(Path(__file__).resolve().parent / "results"))
-    ap.add_argument("--targets", default="mitsuba,gltf,blender")
+    ap.add_argument("--targets", default="mitsuba,gltf,blender,openpbr")
     ap.add_argument("--one", default=None, help=argparse.SUPPRESS)  # the child process
     args = ap.parse_args(argv)
     if args.one:

@@ -5,6 +5,10 @@
 the node graph ``NG_open_pbr_surface_surfaceshader`` of ``libraries/bxdf/open_pbr_surface.mtlx``
 built from the ``pbrlib`` BSDF nodes as ``libraries/pbrlib/genglsl`` implements them
 (MaterialX 1.39.5, the ``materialx`` package on the registry), divided by the light's cosine.
+That graph is the specification's own reference implementation (OpenPBR Surface
+specification v1.1, 2024-06-28, Academy Software Foundation: its ``reference/
+open_pbr_surface.mtlx``, which MaterialX ships); where the specification leaves a choice to the
+renderer (the albedos that weigh the layers, the fuzz's LTC), this model is MaterialX's.
 The parameters are the node's inputs, so a fit here is written to a ``.mtlx`` document with no
 loss (:func:`to_openpbr_inputs`, :mod:`brdf_fit.convert.materialx`). Parity with the generated
 shader itself is a test (``tests/convert/test_materialx.py``: MaterialX's GLSL generator,
@@ -59,11 +63,19 @@ below 0.01 evaluates as 0.01 in the lobe's shape, which differs from MaterialX's
 about a degree of the mirror direction (the albedo fits, compensation and throughputs keep
 MaterialX's 1e-8). A BSDF node whose weight is below ``M_FLOAT_EPS`` is skipped (response 0,
 throughput 1), as in the shader. ``(ior - 1)(ior + 1)`` in the dielectric Fresnel:
-:func:`fresnel_dielectric`.
+:func:`brdf_fit.models._materialx.fresnel_dielectric`. The arithmetic is in
+:mod:`brdf_fit.models._materialx`.
 
 Reciprocity: not reciprocal, as in MaterialX: the compensation, the throughputs and the fuzz's
-LTC depend on the view ``wo``. Energy: the albedo fits are not exact, so a white furnace can
-read slightly above 1 (the registry entries say by how much where it matters).
+LTC depend on the view ``wo``. Energy: the compensation rests on fits of the albedo, so a white
+furnace reads near 1, not exactly (this package's quadrature, 2026-12-07: 0.99-1.07 for a white
+metal or dielectric, specular roughness 0.1-1, view cosines 0.03-1, no coat). And the shader
+clamps ``wi.wo`` to ``[1e-8, 1]`` before EON's lobe (``mx_oren_nayar_diffuse_bsdf.glsl``),
+which EON's derivation does not: with ``base_diffuse_roughness`` 1 a white diffuse base reflects
+1.056 at view cosine 0.5 and 1.140 at 0.1 (1.0000 without the clamp, same quadrature); the
+model keeps the clamp, as MaterialX renders it. (A coat much narrower than the main lobe is not
+followed by the quadrature rule, :meth:`OpenPBRSurface.quadrature_lobe`: its furnace figures
+are not to be trusted.)
 
 Not modelled: transmission, subsurface, thin film, emission, opacity, thin walls, the geometry
 inputs (the normal is the surface's, the tangent its x axis), the back side. ``specular_color``,
@@ -78,8 +90,6 @@ cosine-weighted for the diffuse and the fuzz.
 
 from __future__ import annotations
 
-import math
-
 import jax.numpy as jnp
 import numpy as np
 
@@ -91,13 +101,24 @@ from brdf_fit.core.validate import check_param
 from brdf_fit.core.warp import sample_cosine_hemisphere
 from brdf_fit.models._base import AbstractBRDF, QuadratureLobe, expand_channels
 from brdf_fit.models._lobes import finish_sample, sanitize
+from brdf_fit.models._materialx import (
+    M_FLOAT_EPS,
+    clamp_eps,
+    clamp_width,
+    fresnel_dielectric,
+    fresnel_f82,
+    ggx_albedo_ab,
+    ggx_lobe,
+    ior_to_f0,
+    mix,
+    oren_nayar_eon,
+    roughness_widths,
+    zeltner_fits,
+)
 
 __all__ = ["INPUT_TYPES", "M_FLOAT_EPS", "OPENPBR_DEFAULTS", "OpenPBRSurface",
            "registry_entries", "to_openpbr_inputs"]
 
-#: MaterialX's ``M_FLOAT_EPS`` (``stdlib/genglsl/lib/mx_math.glsl``): the floor of every
-#: cosine and width the shader clamps, and the weight under which a BSDF node is skipped
-M_FLOAT_EPS = 1e-8
 #: the node's defaults (``ND_open_pbr_surface_surfaceshader``, also the registry defaults)
 OPENPBR_DEFAULTS = {
     "base_weight": 1.0,
@@ -127,160 +148,9 @@ _COLOURS = tuple(n for n, t in INPUT_TYPES.items() if t == "color3")
 IOR_MAX = 3.0
 #: the fuzz roughness range of Zeltner et al.'s fit (``mx_sheen_bsdf.glsl`` clamps to it)
 FUZZ_ROUGHNESS_MIN = 0.01
-#: MaterialX's rational fit of GGX's directional albedo (``mx_ggx_dir_albedo_analytic``):
-#: ``(A, B) = clamp(r.xy / r.zw, 0, 1)``, ``r`` a polynomial in ``x = n.wo``, ``y = alpha``
-#: with these coefficients of 1, x, y, xy, x^2, y^2, x^2 y, x y^2, x^2 y^2 (rows)
-GGX_ALBEDO_FIT = np.array([
-    [0.1003, 0.9345, 1.0, 1.0],
-    [-0.6303, -2.323, -1.765, 0.2281],
-    [9.748, 2.229, 8.263, 15.94],
-    [-2.038, -3.748, 11.53, -55.83],
-    [29.34, 1.424, 28.96, 13.08],
-    [-8.245, -0.7684, -7.507, 41.26],
-    [-26.44, 1.436, -36.11, 54.9],
-    [19.99, 0.2913, 15.86, 300.2],
-    [-5.448, 0.6286, 33.37, -285.1],
-])
-#: Fujii's constants of the Oren-Nayar albedos (``mx_microfacet_diffuse.glsl``)
-FUJII_1 = 0.5 - 2.0 / (3.0 * math.pi)
-FUJII_2 = 2.0 / 3.0 - 28.0 / (15.0 * math.pi)
-
-_REF_MX = ("MaterialX 1.39.5 open_pbr_surface (libraries/bxdf/open_pbr_surface.mtlx; "
-           "libraries/pbrlib/genglsl), OpenPBR Surface 1.1, reflection lobes")
-
-
-def _mix(bg, fg, t):
-    """GLSL's ``mix(bg, fg, t) = bg (1 - t) + fg t``."""
-    return bg * (1.0 - t) + fg * t
-
-
-def _clamp_eps(x):
-    return jnp.clip(x, M_FLOAT_EPS, 1.0)
-
-
-def _clamp_width(a, floor=M_FLOAT_EPS):
-    """A GGX width clamped to ``[floor, 1]`` by selection (``clip``'s gradient multiplies the
-    lobe's derivatives at the floor by 0, which is NaN where they overflow float32; ``where``
-    drops them). ``floor``: MaterialX's ``M_FLOAT_EPS`` for the albedo fits and compensation,
-    ``ALPHA_MIN`` for the lobe's shape (module docstring, "Epsilons")."""
-    return jnp.where(a < floor, floor, jnp.where(a > 1.0, 1.0, a))
-
-
-def _lobe(hx, hy, hz, cl, cv, ax, ay):
-    """``D G2 / (4 n.wi n.wo)`` of GGX widths ``(ax, ay)`` floored at ``ALPHA_MIN``, ``G2`` of
-    their geometric mean (``mx_average_alpha``)."""
-    ax, ay = _clamp_width(ax, ALPHA_MIN), _clamp_width(ay, ALPHA_MIN)
-    return _ggx_d(hx, hy, hz, ax, ay) * _ggx_g2_over_cosines(cl, cv, jnp.sqrt(ax * ay)) / 4.0
-
-
-def ggx_albedo_ab(mu, alpha):
-    """``(A, B)`` of MaterialX's fit: GGX's directional albedo at view cosine ``mu`` and width
-    ``alpha`` is ``F0 A + F90 B``."""
-    x, y = mu, alpha
-    terms = (1.0, x, y, x * y, x * x, y * y, x * x * y, x * y * y, x * x * y * y)
-    r = [sum(float(GGX_ALBEDO_FIT[k, j]) * t for k, t in enumerate(terms)) for j in range(4)]
-    return jnp.clip(r[0] / r[2], 0.0, 1.0), jnp.clip(r[1] / r[3], 0.0, 1.0)
-
-
-def fresnel_dielectric(c, ior):
-    """``mx_fresnel_dielectric``: exact, unpolarised; 1 under total internal reflection.
-    ``g^2 = ior^2 + c^2 - 1`` is formed as ``(ior - 1)(ior + 1) + c^2`` (MaterialX adds the
-    terms in order): the same number, without float32's cancellation at ``ior`` near 1 and a
-    grazing ``c``, where MaterialX's order turned ``F`` at ``ior = 1``, ``c = 1e-3`` from 0 into a
-    value 100 times the BRDF's."""
-    g2 = (ior - 1.0) * (ior + 1.0) + c * c
-    tir = g2 < 0.0
-    g = jnp.sqrt(jnp.where(tir, 1.0, g2))
-    f = 0.5 * ((g - c) / (g + c)) ** 2 * (1.0 + (((g + c) * c - 1.0) / ((g - c) * c + 1.0)) ** 2)
-    return jnp.where(tir, 1.0, f)
-
-
-def fresnel_f82(c, f0, f82, f90=1.0, exponent=5.0):
-    """``mx_fresnel_hoffman_schlick``: Schlick's curve from ``f0`` to ``f90`` less Hoffman's
-    term that makes it ``f82``-tinted at ``cos = 1/7`` (not clamped)."""
-    cmax = 1.0 / 7.0
-    factor = 1.0 / (cmax * (1.0 - cmax) ** 6)
-    x = jnp.clip(c, 0.0, 1.0)
-    a = _mix(f0, f90, (1.0 - cmax) ** exponent) * (1.0 - f82) * factor
-    return _mix(f0, f90, (1.0 - x) ** exponent) - a * x * (1.0 - x) ** 6
-
-
-def ior_to_f0(ior):
-    return ((ior - 1.0) / (ior + 1.0)) ** 2
-
-
-def roughness_widths(roughness, anisotropy):
-    """``open_pbr_anisotropy``: ``(alpha_x, alpha_y)`` of a roughness and an anisotropy."""
-    inv = 1.0 - anisotropy
-    alpha_x = roughness * roughness * jnp.sqrt(2.0 / (inv * inv + 1.0))
-    return alpha_x, inv * alpha_x
-
-
-def _ggx_d(hx, hy, hz, ax, ay):
-    """``mx_ggx_NDF``."""
-    ex, ey = hx / ax, hy / ay
-    denom = ex * ex + ey * ey + hz * hz
-    return 1.0 / (math.pi * ax * ay * denom * denom)
-
-
-def _ggx_g2_over_cosines(cl, cv, alpha):
-    """``mx_ggx_smith_G2 / (n.wi n.wo)``."""
-    a2 = alpha * alpha
-    lam_l = jnp.sqrt(a2 + (1.0 - a2) * cl * cl)
-    lam_v = jnp.sqrt(a2 + (1.0 - a2) * cv * cv)
-    return 2.0 / (lam_l * cv + lam_v * cl)
-
-
-def fujii_dir_albedo(c, roughness):
-    """``mx_oren_nayar_fujii_diffuse_dir_albedo``: the directional albedo of Fujii's
-    single-scattering Oren-Nayar lobe at cosine ``c``."""
-    a = 1.0 / (1.0 + FUJII_1 * roughness)
-    # sin and acos as safe_sqrt and atan2(sin, cos): the same values, and a finite gradient at
-    # c = 1 (normal incidence), where sqrt's and acos's derivatives are infinite
-    si = safe_sqrt(1.0 - c * c)
-    g = si * (jnp.arctan2(si, c) - si * c) \
-        + 2.0 * ((si / c) * (1.0 - si * si * si) - si) / 3.0
-    return a + (roughness * a) * g * INV_PI
-
-
-def fujii_avg_albedo(roughness):
-    """``mx_oren_nayar_fujii_diffuse_avg_albedo``."""
-    return (1.0 + FUJII_2 * roughness) / (1.0 + FUJII_1 * roughness)
-
-
-def eon_multiple_scattering_colour(color, roughness):
-    """EON's multiple-scattering colour ``color^2 E_avg / (1 - color (1 - E_avg))``."""
-    avg = fujii_avg_albedo(roughness)
-    return color * color * avg / (1.0 - color * jnp.maximum(0.0, 1.0 - avg))
-
-
-def oren_nayar_eon(cv, cl, lv, roughness, color):
-    """``mx_oren_nayar_compensated_diffuse / pi``: EON's single- plus multiple-scattering
-    lobes (a BRDF; the shader's response is this times ``n.wi``)."""
-    s = lv - cl * cv
-    stinv = jnp.where(s > 0.0, s / jnp.maximum(cl, cv), s)
-    a = 1.0 / (1.0 + FUJII_1 * roughness)
-    single = color * a * (1.0 + roughness * stinv)
-    avg = fujii_avg_albedo(roughness)
-    multi = eon_multiple_scattering_colour(color, roughness) \
-        * jnp.maximum(M_FLOAT_EPS, 1.0 - fujii_dir_albedo(cv, roughness)) \
-        * jnp.maximum(M_FLOAT_EPS, 1.0 - fujii_dir_albedo(cl, roughness)) \
-        / jnp.maximum(M_FLOAT_EPS, 1.0 - avg)
-    return (single + multi) * INV_PI
-
-
-def zeltner_fits(mu, roughness):
-    """``(albedo, a_inv, b_inv)`` of MaterialX's fits of Zeltner et al.'s sheen at view cosine
-    ``mu`` (``mx_zeltner_sheen_dir_albedo``, ``_ltc_aInv``, ``_ltc_bInv``)."""
-    x, y = mu, roughness
-    s = y * (0.0206607 + 1.58491 * y) / (0.0379424 + y * (1.32227 + y))
-    m = y * (-0.193854 + y * (-1.14885 + y * (1.7932 - 0.95943 * y * y))) / (0.046391 + y)
-    o = y * (0.000654023 + (-0.0207818 + 0.119681 * y) * y) / (1.26264 + y * (-1.92021 + y))
-    albedo = jnp.exp(-0.5 * ((x - m) / s) ** 2) / (s * math.sqrt(2.0 * math.pi)) + o
-    a_inv = (2.58126 * x + 0.813703 * y) * y / (1.0 + 0.310327 * x * x + 2.60994 * x * y)
-    b_inv = safe_sqrt(1.0 - x) * (y - 1.0) * y * y * y \
-        / (0.0000254053 + 1.71228 * x - 1.71506 * x * y + 1.34174 * y * y)
-    return albedo, a_inv, b_inv
+_REF_MX = ("OpenPBR Surface specification v1.1 (2024), reflection lobes, as its reference "
+           "implementation in MaterialX 1.39.5 computes them (libraries/bxdf/"
+           "open_pbr_surface.mtlx; libraries/pbrlib/genglsl)")
 
 
 class OpenPBRSurface(AbstractBRDF):
@@ -340,7 +210,7 @@ class OpenPBRSurface(AbstractBRDF):
         if self.coat_weight is not None:
             rc = self._opt("coat_roughness")
             rough4 = jnp.minimum(1.0, 2.0 * rc ** 4 + r ** 4)
-            r = _mix(r, safe_sqrt(safe_sqrt(rough4)), self.coat_weight)
+            r = mix(r, safe_sqrt(safe_sqrt(rough4)), self.coat_weight)
         return roughness_widths(r, self._opt("specular_roughness_anisotropy"))
 
     def coat_widths(self):
@@ -354,7 +224,7 @@ class OpenPBRSurface(AbstractBRDF):
             ci = self._opt("coat_ior")
             ratio = ior / ci
             ratio = jnp.where(ratio > 1.0, ratio, ci / ior)
-            ior = _mix(ior, ratio, self.coat_weight)
+            ior = mix(ior, ratio, self.coat_weight)
         f0 = jnp.clip(self._opt("specular_weight") * ior_to_f0(ior), 0.0, 0.99999)
         e = jnp.sign(ior - 1.0) * safe_sqrt(f0)
         return (1.0 + e) / (1.0 - e)
@@ -368,10 +238,10 @@ class OpenPBRSurface(AbstractBRDF):
         k = 1.0 - (1.0 - ior_to_f0(ci)) / (ci * ci)
         # E_base reads the raw base_color, as the graph does (the diffuse clamps it at 0)
         e_metal = self.base_color * self._opt("specular_weight")
-        e_base = _mix(self.base_color, e_metal, self.base_metalness)
+        e_base = mix(self.base_color, e_metal, self.base_metalness)
         darkening = (1.0 - k) / (1.0 - e_base * k)
-        dark = _mix(1.0, darkening, cw * self._opt("coat_darkening"))
-        atten = _mix(1.0, self._opt("coat_color"), cw)
+        dark = mix(1.0, darkening, cw * self._opt("coat_darkening"))
+        atten = mix(1.0, self._opt("coat_color"), cw)
         return jnp.clip(dark, 0.0, 1.0) * jnp.clip(atten, 0.0, 1.0)
 
     # ------------------------------------------------------------------ the BRDF
@@ -391,14 +261,14 @@ class OpenPBRSurface(AbstractBRDF):
         hx, hy, hz = ix + ox, iy + oy, iz + oz
         inv_len = 1.0 / jnp.sqrt(hx * hx + hy * hy + hz * hz)
         hx, hy, hz = hx * inv_len, hy * inv_len, hz * inv_len
-        cv, cl = _clamp_eps(oz), _clamp_eps(iz)
-        c = _clamp_eps(ox * hx + oy * hy + oz * hz)
-        lv = _clamp_eps(ix * ox + iy * oy + iz * oz)
+        cv, cl = clamp_eps(oz), clamp_eps(iz)
+        c = clamp_eps(ox * hx + oy * hy + oz * hz)
+        lv = clamp_eps(ix * ox + iy * oy + iz * oz)
 
         # specular (dielectric_bsdf, weight 1, tint specular_color) and metal lobes share D, G2
         ax, ay = self.main_widths()
-        lobe = _lobe(hx, hy, hz, cl, cv, ax, ay)
-        a_fit, b_fit = ggx_albedo_ab(cv, jnp.sqrt(_clamp_width(ax) * _clamp_width(ay)))
+        lobe = ggx_lobe(hx, hy, hz, cl, cv, ax, ay)
+        a_fit, b_fit = ggx_albedo_ab(cv, jnp.sqrt(clamp_width(ax) * clamp_width(ay)))
         e_ss = a_fit + b_fit
         eta = self.specular_eta()
         f_d = fresnel_dielectric(c, eta)
@@ -420,7 +290,7 @@ class OpenPBRSurface(AbstractBRDF):
         comp_m = 1.0 + f_m * ex((1.0 - e_ss) / e_ss)
         metal = jnp.where(sw < M_FLOAT_EPS, 0.0, ex(lobe) * f_m * comp_m * sw)
         m = self.base_metalness
-        base = _mix(dielectric, metal, m)
+        base = mix(dielectric, metal, m)
         parts = {"spec_t": spec_t, "a": a_fit, "b": b_fit, "eta": eta, "f0_m": f0_m}
         factor = self._base_factor()
         if factor is not None:
@@ -429,9 +299,9 @@ class OpenPBRSurface(AbstractBRDF):
             cax, cay = self.coat_widths()
             ci = self._opt("coat_ior")
             f_c = fresnel_dielectric(c, ci)
-            ac, bc = ggx_albedo_ab(cv, jnp.sqrt(_clamp_width(cax) * _clamp_width(cay)))
+            ac, bc = ggx_albedo_ab(cv, jnp.sqrt(clamp_width(cax) * clamp_width(cay)))
             comp_c = 1.0 + f_c * (1.0 - (ac + bc)) / (ac + bc)
-            coat = _lobe(hx, hy, hz, cl, cv, cax, cay) \
+            coat = ggx_lobe(hx, hy, hz, cl, cv, cax, cay) \
                 * f_c * comp_c * cw
             coat_t = 1.0 - (ior_to_f0(ci) * ac + bc) * comp_c * cw
             off = cw < M_FLOAT_EPS
@@ -489,10 +359,10 @@ class OpenPBRSurface(AbstractBRDF):
                 jnp.where(ok, pc * inv, 0.0))
 
     def _dists(self):
-        main = GGX(*(_clamp_width(a, ALPHA_MIN) for a in self.main_widths()))
+        main = GGX(*(clamp_width(a, ALPHA_MIN) for a in self.main_widths()))
         coat = None
         if self.coat_weight is not None:
-            coat = GGX(*(_clamp_width(a, ALPHA_MIN) for a in self.coat_widths()))
+            coat = GGX(*(clamp_width(a, ALPHA_MIN) for a in self.coat_widths()))
         return main, coat
 
     def pdf(self, wi, wo):

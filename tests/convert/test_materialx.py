@@ -16,7 +16,7 @@ import pytest
 
 from brdf_fit.convert import materialx as cx
 from brdf_fit.convert import materialx_render as mr
-from brdf_fit.models import openpbr
+from brdf_fit.models import _materialx as mxf
 from brdf_fit.models.openpbr import OpenPBRSurface
 from tests._helpers import float32_spread
 
@@ -130,14 +130,14 @@ def _acos_bound(params, wi, wo, delta):
         return np.zeros(len(wi))[:, None]
     colour = np.asarray(params["base_color"], np.float64)
     weight = float(params.get("base_weight", 1.0))
-    a = 1.0 / (1.0 + openpbr.FUJII_1 * r)
+    a = 1.0 / (1.0 + mxf.FUJII_1 * r)
     ci, co = wi[:, 2], wo[:, 2]
-    e_i = np.asarray(openpbr.fujii_dir_albedo(ci, r))
-    e_o = np.asarray(openpbr.fujii_dir_albedo(co, r))
+    e_i = np.asarray(mxf.fujii_dir_albedo(ci, r))
+    e_o = np.asarray(mxf.fujii_dir_albedo(co, r))
     de_i = r * a * np.sqrt(1 - ci * ci) * delta / math.pi
     de_o = r * a * np.sqrt(1 - co * co) * delta / math.pi
-    c_ms = np.asarray(openpbr.eon_multiple_scattering_colour(colour, r))
-    scale = weight * c_ms / (math.pi * (1.0 - float(openpbr.fujii_avg_albedo(r))))
+    c_ms = np.asarray(mxf.eon_multiple_scattering_colour(colour, r))
+    scale = weight * c_ms / (math.pi * (1.0 - float(mxf.fujii_avg_albedo(r))))
     return scale[None, :] * (de_o * (1 - e_i) + de_i * (1 - e_o))[:, None] * ci[:, None]
 
 
