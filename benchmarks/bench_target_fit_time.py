@@ -9,7 +9,8 @@ For every registry entry native to a target (``Entry.target``), in a fresh proce
 itself at a coloured, mid-range parameter set away from the default start (:data:`MATERIAL`),
 evaluated at the four-axis plan of bench_blender_roundtrip (524 direction pairs x 3 channels,
 noise-free); ``brdf_fit.fitting.single.fit`` in the default metric from the default start (4
-starts for an entry tagged "layered", as select fits it), twice: the first call's wall time
+starts for an entry tagged "layered", or the entry's own ``select_starts``, as select fits
+it), twice: the first call's wall time
 includes compiling the entry's programs, the second is the fit alone. Both fits' convergence
 and the largest parameter error are reported. Writes ``target_fit_time.md`` and ``.json``.
 """
@@ -77,7 +78,7 @@ def _one_target(target: str) -> list[dict]:
         value = np.broadcast_to(np.asarray(model.eval(wi, wo)), (len(wi), 3))
         data = GonioData(wi=wi, wo=wo, value=np.array(value), channels=("R", "G", "B"))
         # the starts select gives a layered entry (brdf_fit.selection.selector.LAYERED_STARTS)
-        starts = LAYERED_STARTS if "layered" in e.tags else 1
+        starts = max(LAYERED_STARTS if "layered" in e.tags else 1, e.select_starts)
         times, errs, conv = [], [], []
         for _ in range(2):
             t0 = time.perf_counter()

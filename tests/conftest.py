@@ -130,6 +130,9 @@ SLOW_TESTS = {
     # every check of the Phong family at exponent 100 (30 s, stop 35's profile): its registry
     # checks' stand-in (tests/verify/test_checks.py), in the slow set with them
     "tests/verify/test_phong_checks.py::test_checks_at_exponent",
+    # the OpenPBR selection of issue 42's red plastic (47 s beside a benchmark, 2026-12-07: the
+    # coated extension's 16 starts; the fit and export tests of the file stay)
+    "tests/cli/test_cli_openpbr.py::test_select_for_openpbr_takes_no_coat_or_fuzz_on_a_plastic",
 }
 #: the chi-square of the microfacet sampling strategies and of the core entries at this view
 #: runs in the slow set (the other two views, 0.3 and grazing 0.03, by default: 42 s and 22 s

@@ -169,6 +169,10 @@ class Entry:
     #: channel parameter (glTF's max over the Fresnel colour, a tint by luminance): fitting
     #: then takes every channel parameter entry by entry (brdf_fit.fitting.problem)
     channels_coupled: str = ""
+    #: the fewest starts selection fits this entry from (0: the selector's own rule,
+    #: brdf_fit.selection.selector.LAYERED_STARTS for a layered entry): an entry whose fits
+    #: stop in local minima from the selector's starts says how many it needs, measured
+    select_starts: int = 0
 
     @property
     def param_names(self) -> tuple[str, ...]:

@@ -347,13 +347,14 @@ def _fit_candidate(e, plain, data, n_res, checks, max_steps, multistart, seed, c
     try:
         if "layered" in e.tags:
             pre = fit(plain, e.name, metric=LAYERED_PREFIT_METRIC, cos_weight=True,
-                      max_steps=max_steps, multistart=max(multistart, LAYERED_STARTS),
+                      max_steps=max_steps,
+                      multistart=max(multistart, LAYERED_STARTS, e.select_starts),
                       seed=seed)
             r = fit(plain, e.name, metric="absolute", cos_weight=True, max_steps=max_steps,
                     init=pre.params)
         else:
             r = fit(plain, e.name, metric="absolute", cos_weight=True, max_steps=max_steps,
-                    multistart=multistart, seed=seed)
+                    multistart=max(multistart, e.select_starts), seed=seed)
     except (ParameterError, FitError) as exc:  # one candidate's failure loses no other
         return Candidate(
             model=e.name, params={}, stderr={}, error=float("inf"), cost_ns=float("nan"),
