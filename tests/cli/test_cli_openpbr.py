@@ -87,3 +87,20 @@ def test_an_mtlx_export_of_another_target_is_refused(plastic, tmp_path, capsys):
     assert "converged: yes" in captured.out  # the fit is printed
     assert "openpbr-surface" in captured.err  # the message names the entries that export
     assert not (tmp_path / "m.mtlx").exists()
+
+
+def test_a_scene_writes_one_openpbr_material_per_material(tmp_path, capsys):
+    """select --scene --target openpbr --mtlx: the scene's material name, made a valid
+    MaterialX name, and the fitted inputs of the model it was given as."""
+    scene = tmp_path / "s.toml"
+    scene.write_text('[[material]]\nname = "red paint"\nmodel = "openpbr-surface"\n'
+                     'params = { base_color = [0.8, 0.05, 0.05], specular_roughness = 0.35 }\n',
+                     encoding="utf-8")
+    out = tmp_path / "scene.mtlx"
+    rc = main(["select", "--scene", str(scene), "--target", "openpbr", "--candidates",
+               "openpbr-surface", "--mtlx", str(out), "--quiet"])
+    captured = capsys.readouterr()
+    assert rc == 0, captured.err
+    inputs = _inputs(out, "red_paint")
+    assert np.allclose(inputs["base_color"], [0.8, 0.05, 0.05], atol=1e-3)
+    assert abs(inputs["specular_roughness"][0] - 0.35) < 1e-3
