@@ -375,3 +375,54 @@ def direction_sensitivity(model, wi, wo):
 
     total = np.abs(tangential(gi, wi)).sum(-1) + np.abs(tangential(go, wo)).sum(-1)
     return total / np.maximum(np.abs(value), 1e-300)
+
+
+def parity_pairs(n, seed, lo=1e-2):
+    """``n`` random ``(wi, wo)`` pairs, cosines uniform in ``[lo, 1]`` and azimuths uniform:
+    the random half of the renderer parity tests (Cycles, MaterialX)."""
+    rng = np.random.default_rng(seed)
+
+    def dirs(m):
+        mu = rng.uniform(lo, 1.0, m)
+        phi = rng.uniform(0.0, 2.0 * math.pi, m)
+        s = np.sqrt(1.0 - mu * mu)
+        return np.stack([s * np.cos(phi), s * np.sin(phi), mu], -1)
+
+    return dirs(n), dirs(n)
+
+
+def grazing_pairs():
+    """36 pairs with both directions at cos 1e-3 .. 0.05 (the view at 1e-3 .. 0.3), near-mirror,
+    near-retro and crossed azimuths: the grazing half of the renderer parity tests."""
+    out_i, out_o = [], []
+    for ci in (1e-3, 0.01, 0.05):
+        for co in (1e-3, 0.02, 0.3):
+            for dphi in (0.0, 0.5 * math.pi, math.pi - 0.05, math.pi):
+                si, so = math.sqrt(1 - ci * ci), math.sqrt(1 - co * co)
+                out_i.append((si * math.cos(dphi), si * math.sin(dphi), ci))
+                out_o.append((-so, 0.0, co))
+    return np.array(out_i), np.array(out_o)
+
+
+def write_model_data(path, entry: str, params: dict, n: int = 400, seed: int = 0,
+                     noise: float = 0.01, lo: float = 0.05):
+    """Write registry ``entry`` at ``params`` as RGB gonioreflectometer data (``.npz``): ``n``
+    random pairs with cosines in ``[lo, 1]``, multiplicative Gaussian noise of ``noise``
+    (the target CLI tests' materials). Returns ``path``."""
+    from brdf_fit import registry
+    from brdf_fit.data import GonioData
+    from brdf_fit.io.npz import write_npz
+
+    rng = np.random.default_rng(seed)
+
+    def dirs(m):
+        mu = rng.uniform(lo, 1.0, m)
+        phi = rng.uniform(0.0, 2.0 * np.pi, m)
+        s = np.sqrt(1.0 - mu * mu)
+        return np.stack([s * np.cos(phi), s * np.sin(phi), mu], -1)
+
+    wi, wo = dirs(n), dirs(n)
+    f = np.asarray(registry.get(entry).build(**params).eval(wi, wo))
+    f = f * (1.0 + noise * rng.standard_normal(f.shape))
+    write_npz(GonioData(wi=wi, wo=wo, value=f, channels=("R", "G", "B")), path)
+    return path

@@ -22,6 +22,7 @@ from jaxtyping import ArrayLike, Float
 from brdf_fit.core.validate import ParameterError, PrecisionWarning, check_param, concrete
 
 __all__ = [
+    "node_input_values",
     "Param",
     "Entry",
     "UnknownModelError",
@@ -225,3 +226,30 @@ class Entry:
             "expected_failures": dict(self.expected_failures),
             "target": self.target,
         }
+
+
+def node_input_values(params: dict, valid: tuple[str, ...], colours: tuple[str, ...],
+                      node: str) -> dict:
+    """A native entry's parameters as a renderer node's input values: ``{name: float}`` for a
+    scalar, ``{name: [r, g, b]}`` for a colour (a grey value repeated), every given parameter.
+    A name not in ``valid``, or a value of the wrong size, is a ``ValueError`` naming ``node``
+    (the Blender and OpenPBR exports' shared conversion)."""
+    import numpy as np
+
+    out = {}
+    for name, value in params.items():
+        if name not in valid:
+            raise ValueError(f"{name!r} is not an input of {node} here; valid: "
+                             f"{', '.join(valid)}")
+        v = [float(x) for x in np.ravel(np.asarray(value, np.float64))]
+        if name in colours:
+            if len(v) == 1:
+                v = v * 3
+            if len(v) != 3:
+                raise ValueError(f"{name} must be RGB or grey, got {len(v)} values")
+            out[name] = v
+        else:
+            if len(v) != 1:
+                raise ValueError(f"{name} must be a scalar, got {len(v)} values")
+            out[name] = v[0]
+    return out

@@ -100,13 +100,12 @@ from __future__ import annotations
 
 import equinox as eqx
 import jax.numpy as jnp
-import numpy as np
 
 from brdf_fit.core.frame import join, split
 from brdf_fit.core.fresnel import dielectric
 from brdf_fit.core.microfacet import GGX, reflect_about
 from brdf_fit.core.numerics import INV_PI, safe_div, safe_sqrt
-from brdf_fit.core.params import Channels, Entry, Param, Scalar, bounded
+from brdf_fit.core.params import Channels, Entry, Param, Scalar, bounded, node_input_values
 from brdf_fit.core.validate import check_param
 from brdf_fit.core.warp import sample_cosine_hemisphere
 from brdf_fit.models import _cycles as _cy
@@ -502,23 +501,10 @@ def to_blender_inputs(params: dict) -> dict:
     ``{socket name: value}`` (colours as RGBA lists, alpha 1; scalars as floats), every given
     parameter. Blender then renders what :class:`BlenderPrincipled` with the same parameters
     evaluates."""
-    out = {}
-    for name, value in params.items():
-        if name not in INPUT_NAMES:
-            raise ValueError(f"{name!r} is not an input of Blender's Principled BSDF here; "
-                             f"valid: {', '.join(INPUT_NAMES)}")
-        v = [float(x) for x in np.ravel(np.asarray(value, np.float64))]
-        if name in _COLOURS:
-            if len(v) == 1:
-                v = v * 3
-            if len(v) != 3:
-                raise ValueError(f"{name} must be RGB or grey, got {len(v)} values")
-            out[INPUT_NAMES[name]] = v + [1.0]
-        else:
-            if len(v) != 1:
-                raise ValueError(f"{name} must be a scalar, got {len(v)} values")
-            out[INPUT_NAMES[name]] = v[0]
-    return out
+    values = node_input_values(params, tuple(INPUT_NAMES), _COLOURS,
+                               "Blender's Principled BSDF")
+    return {INPUT_NAMES[name]: v + [1.0] if name in _COLOURS else v
+            for name, v in values.items()}
 
 
 _NATIVE = {"target": "blender", "native_export": to_blender_inputs}

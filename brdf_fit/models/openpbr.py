@@ -101,12 +101,11 @@ cosine-weighted for the diffuse and the fuzz.
 from __future__ import annotations
 
 import jax.numpy as jnp
-import numpy as np
 
 from brdf_fit.core.frame import join, split
 from brdf_fit.core.microfacet import GGX, reflect_about
 from brdf_fit.core.numerics import ALPHA_MIN, INV_PI, safe_sqrt
-from brdf_fit.core.params import Channels, Entry, Param, Scalar, bounded
+from brdf_fit.core.params import Channels, Entry, Param, Scalar, bounded, node_input_values
 from brdf_fit.core.validate import check_param
 from brdf_fit.core.warp import sample_cosine_hemisphere
 from brdf_fit.models._base import AbstractBRDF, QuadratureLobe, expand_channels
@@ -161,6 +160,19 @@ FUZZ_ROUGHNESS_MIN = 0.01
 _REF_MX = ("OpenPBR Surface specification v1.1 (2024), reflection lobes, as its reference "
            "implementation in MaterialX 1.39.5 computes them (libraries/bxdf/"
            "open_pbr_surface.mtlx; libraries/pbrlib/genglsl)")
+
+
+def _geometry(wi, wo):
+    """``(valid, wi, wo, h)`` as components: both directions above the horizon (elsewhere
+    replaced by the normal) and ``h = normalize(wi + wo)`` (the shader's ``normalize(L + V)``)."""
+    ix, iy, iz = split(wi)
+    ox, oy, oz = split(wo)
+    valid = (iz > 0) & (oz > 0)
+    ix, iy, iz = sanitize(valid, ix, iy, iz)
+    ox, oy, oz = sanitize(valid, ox, oy, oz)
+    hx, hy, hz = ix + ox, iy + oy, iz + oz
+    inv_len = 1.0 / jnp.sqrt(hx * hx + hy * hy + hz * hz)
+    return valid, (ix, iy, iz), (ox, oy, oz), (hx * inv_len, hy * inv_len, hz * inv_len)
 
 
 class OpenPBRSurface(AbstractBRDF):
@@ -258,19 +270,12 @@ class OpenPBRSurface(AbstractBRDF):
 
     def _terms(self, wi, wo):
         """``(valid, f, parts)``: the BRDF and, for the sampler, the lobes' throughputs."""
-        ix, iy, iz = split(wi)
-        ox, oy, oz = split(wo)
-        valid = (iz > 0) & (oz > 0)
-        ix, iy, iz = sanitize(valid, ix, iy, iz)
-        ox, oy, oz = sanitize(valid, ox, oy, oz)
+        valid, (ix, iy, iz), (ox, oy, oz), (hx, hy, hz) = _geometry(wi, wo)
         ch = self.channels()
 
         def ex(x):
             return expand_channels(x, ch)
 
-        hx, hy, hz = ix + ox, iy + oy, iz + oz
-        inv_len = 1.0 / jnp.sqrt(hx * hx + hy * hy + hz * hz)
-        hx, hy, hz = hx * inv_len, hy * inv_len, hz * inv_len
         cv, cl = clamp_eps(oz), clamp_eps(iz)
         c = clamp_eps(ox * hx + oy * hy + oz * hz)
         lv = clamp_eps(ix * ox + iy * oy + iz * oz)
@@ -376,14 +381,7 @@ class OpenPBRSurface(AbstractBRDF):
         return main, coat
 
     def pdf(self, wi, wo):
-        ix, iy, iz = split(wi)
-        ox, oy, oz = split(wo)
-        valid = (iz > 0) & (oz > 0)
-        ix, iy, iz = sanitize(valid, ix, iy, iz)
-        ox, oy, oz = sanitize(valid, ox, oy, oz)
-        hx, hy, hz = ix + ox, iy + oy, iz + oz
-        inv_len = 1.0 / jnp.sqrt(hx * hx + hy * hy + hz * hz)
-        hx, hy, hz = hx * inv_len, hy * inv_len, hz * inv_len
+        valid, (ix, iy, iz), (ox, oy, oz), (hx, hy, hz) = _geometry(wi, wo)
         pd, pm, pc = self.lobe_probabilities(join(ox, oy, oz))
         main, coat = self._dists()
         # visible normals D G1(wo) (wo.h)/cos_o times dwh/dwi = 1/(4 wi.h)
@@ -465,23 +463,7 @@ def to_openpbr_inputs(params: dict) -> dict:
     parameters: ``{input name: value}`` (colours as 3 floats, scalars as a float), every given
     parameter. MaterialX then renders what :class:`OpenPBRSurface` with the same parameters
     evaluates."""
-    out = {}
-    for name, value in params.items():
-        if name not in OPENPBR_DEFAULTS:
-            raise ValueError(f"{name!r} is not an input of OpenPBR Surface here; valid: "
-                             f"{', '.join(OPENPBR_DEFAULTS)}")
-        v = [float(x) for x in np.ravel(np.asarray(value, np.float64))]
-        if name in _COLOURS:
-            if len(v) == 1:
-                v = v * 3
-            if len(v) != 3:
-                raise ValueError(f"{name} must be RGB or grey, got {len(v)} values")
-            out[name] = v
-        else:
-            if len(v) != 1:
-                raise ValueError(f"{name} must be a scalar, got {len(v)} values")
-            out[name] = v[0]
-    return out
+    return node_input_values(params, tuple(OPENPBR_DEFAULTS), _COLOURS, "OpenPBR Surface")
 
 
 _NATIVE = {"target": "openpbr", "native_export": to_openpbr_inputs}

@@ -11,11 +11,9 @@ import jax
 import numpy as np
 import pytest
 
-from brdf_fit import registry
 from brdf_fit.cli import main
 from brdf_fit.convert import blender as cb
-from brdf_fit.data import GonioData
-from brdf_fit.io.npz import write_npz
+from tests._helpers import write_model_data
 
 jax.config.update("jax_enable_x64", True)
 
@@ -26,20 +24,8 @@ TRUTH = {"base_color": np.array([0.8, 0.05, 0.05]), "roughness": 0.35, "metallic
 @pytest.fixture(scope="module")
 def plastic(tmp_path_factory):
     """A red plastic as blender-principled evaluates it (1% noise) at 400 random pairs."""
-    rng = np.random.default_rng(4)
-
-    def dirs(n):
-        mu = rng.uniform(0.05, 1.0, n)
-        phi = rng.uniform(0.0, 2.0 * np.pi, n)
-        s = np.sqrt(1.0 - mu * mu)
-        return np.stack([s * np.cos(phi), s * np.sin(phi), mu], -1)
-
-    wi, wo = dirs(400), dirs(400)
-    f = np.asarray(registry.get("blender-principled").build(**TRUTH).eval(wi, wo))
-    f = f * (1.0 + 0.01 * rng.standard_normal(f.shape))
     path = tmp_path_factory.mktemp("blender") / "red_plastic.npz"
-    write_npz(GonioData(wi=wi, wo=wo, value=f, channels=("R", "G", "B")), path)
-    return path
+    return write_model_data(path, "blender-principled", TRUTH, seed=4)
 
 
 def _materials(path):

@@ -14,7 +14,7 @@ import pytest
 
 from brdf_fit.convert import blender as cb
 from brdf_fit.models.blender_principled import BlenderPrincipled
-from tests._helpers import float32_spread
+from tests._helpers import float32_spread, grazing_pairs, parity_pairs
 
 jax.config.update("jax_enable_x64", True)
 
@@ -24,30 +24,6 @@ def _blender_or_skip():
         cb.find_blender_python()
     except cb.BlenderNotFound as exc:
         pytest.skip(str(exc))
-
-
-def _pairs(n, seed, lo=1e-2):
-    rng = np.random.default_rng(seed)
-
-    def dirs(m):
-        mu = rng.uniform(lo, 1.0, m)
-        phi = rng.uniform(0.0, 2.0 * math.pi, m)
-        s = np.sqrt(1.0 - mu * mu)
-        return np.stack([s * np.cos(phi), s * np.sin(phi), mu], -1)
-
-    return dirs(n), dirs(n)
-
-
-def _grazing_pairs():
-    """Both directions at cos 1e-3 .. 0.05, near-mirror, near-retro and crossed azimuths."""
-    out_i, out_o = [], []
-    for ci in (1e-3, 0.01, 0.05):
-        for co in (1e-3, 0.02, 0.3):
-            for dphi in (0.0, 0.5 * math.pi, math.pi - 0.05, math.pi):
-                si, so = math.sqrt(1 - ci * ci), math.sqrt(1 - co * co)
-                out_i.append((si * math.cos(dphi), si * math.sin(dphi), ci))
-                out_o.append((-so, 0.0, co))
-    return np.array(out_i), np.array(out_o)
 
 
 def test_script_is_python_that_names_each_material_once():
@@ -74,7 +50,7 @@ def test_only_blender_entries_export():
 
 
 def test_pair_frames_put_each_pair_under_the_camera_and_the_sun():
-    wi, wo = _pairs(50, 3)
+    wi, wo = parity_pairs(50, 3)
     wi[0] = wo[0]  # a retro-reflection pair: any frame perpendicular to it
     gamma, n, t = cb.pair_frames(wi, wo)
     b = np.cross(n, t)
@@ -174,8 +150,8 @@ def test_entry_renders_as_cycles(name):
     evaluates it (f cos, the sun's irradiance 1), to float32 rounding and the tables'
     difference."""
     _blender_or_skip()
-    wi, wo = _pairs(40, 10 + len(name))
-    gi, go = _grazing_pairs()
+    wi, wo = parity_pairs(40, 10 + len(name))
+    gi, go = grazing_pairs()
     wi, wo = np.concatenate([wi, gi]), np.concatenate([wo, go])
     ans, ours, spread = _render_and_model(name, MATERIALS[name], wi, wo)
     assert np.max(ans["spread"]) < 1e-6  # every pixel of a quad renders the same value
@@ -184,7 +160,7 @@ def test_entry_renders_as_cycles(name):
 
 def test_single_scattering_distribution_renders_as_cycles():
     _blender_or_skip()
-    wi, wo = _pairs(40, 7)
+    wi, wo = parity_pairs(40, 7)
     ans, ours, spread = _render_and_model("ggx", MATERIALS["mixed"], wi, wo,
                                           multiscatter=False)
     _assert_parity(ours, ans["f_cos"], spread)
@@ -194,7 +170,7 @@ def test_a_wrong_roughness_fails_the_parity():
     """The negative control: the same comparison with the roughness off by 0.01 fails by far
     more than the bound."""
     _blender_or_skip()
-    wi, wo = _pairs(40, 8)
+    wi, wo = parity_pairs(40, 8)
     p = dict(MATERIALS["dielectric"])
     ans, _, _ = _render_and_model("dielectric", p, wi, wo)
     wrong = BlenderPrincipled(**{k: np.asarray(v, np.float64) for k, v in

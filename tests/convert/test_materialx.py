@@ -18,7 +18,7 @@ from brdf_fit.convert import materialx as cx
 from brdf_fit.convert import materialx_render as mr
 from brdf_fit.models import _materialx as mxf
 from brdf_fit.models.openpbr import OpenPBRSurface
-from tests._helpers import float32_spread
+from tests._helpers import float32_spread, grazing_pairs, parity_pairs
 
 jax.config.update("jax_enable_x64", True)
 
@@ -83,30 +83,6 @@ def _render_or_skip():
 
 def _materialx_or_skip():
     pytest.importorskip("MaterialX", reason=cx.MATERIALX_EXTRA)
-
-
-def _pairs(n, seed, lo=1e-2):
-    rng = np.random.default_rng(seed)
-
-    def dirs(m):
-        mu = rng.uniform(lo, 1.0, m)
-        phi = rng.uniform(0.0, 2.0 * math.pi, m)
-        s = np.sqrt(1.0 - mu * mu)
-        return np.stack([s * np.cos(phi), s * np.sin(phi), mu], -1)
-
-    return dirs(n), dirs(n)
-
-
-def _grazing_pairs():
-    """Both directions at cos 1e-3 .. 0.05, near-mirror, near-retro and crossed azimuths."""
-    out_i, out_o = [], []
-    for ci in (1e-3, 0.01, 0.05):
-        for co in (1e-3, 0.02, 0.3):
-            for dphi in (0.0, 0.5 * math.pi, math.pi - 0.05, math.pi):
-                si, so = math.sqrt(1 - ci * ci), math.sqrt(1 - co * co)
-                out_i.append((si * math.cos(dphi), si * math.sin(dphi), ci))
-                out_o.append((-so, 0.0, co))
-    return np.array(out_i), np.array(out_o)
 
 
 def _document(name, entry, params):
@@ -216,8 +192,8 @@ def test_entry_renders_as_materialx(name):
     for the rough diffuse lobe, the renderer's acos error."""
     _render_or_skip()
     entry, params = MATERIALS[name]
-    wi, wo = _pairs(200, 20 + len(name))
-    gi, go = _grazing_pairs()
+    wi, wo = parity_pairs(200, 20 + len(name))
+    gi, go = grazing_pairs()
     wi, wo = np.concatenate([wi, gi]), np.concatenate([wo, go])
     theirs, spread = _render(_document(name, entry, params), name, wi, wo)
     model = _model(entry, params)
@@ -233,7 +209,7 @@ def test_a_wrong_roughness_fails_the_parity():
     more than the bound."""
     _render_or_skip()
     entry, params = MATERIALS["dielectric"]
-    wi, wo = _pairs(100, 8)
+    wi, wo = parity_pairs(100, 8)
     theirs = mr.measure_in_materialx(_document("d", entry, params), "d", wi, wo)
     wrong = _model(entry, {**params, "specular_roughness": 0.36})
     ours = np.asarray(wrong.eval(wi, wo)) * wi[:, 2:3]
