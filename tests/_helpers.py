@@ -378,17 +378,10 @@ def direction_sensitivity(model, wi, wo):
 
 
 def parity_pairs(n, seed, lo=1e-2):
-    """``n`` random ``(wi, wo)`` pairs, cosines uniform in ``[lo, 1]`` and azimuths uniform:
-    the random half of the renderer parity tests (Cycles, MaterialX)."""
+    """``n`` random ``(wi, wo)`` pairs (:func:`random_dirs`, seeded): the random half of the
+    renderer parity tests (Cycles, MaterialX)."""
     rng = np.random.default_rng(seed)
-
-    def dirs(m):
-        mu = rng.uniform(lo, 1.0, m)
-        phi = rng.uniform(0.0, 2.0 * math.pi, m)
-        s = np.sqrt(1.0 - mu * mu)
-        return np.stack([s * np.cos(phi), s * np.sin(phi), mu], -1)
-
-    return dirs(n), dirs(n)
+    return random_dirs(rng, n, lo), random_dirs(rng, n, lo)
 
 
 def grazing_pairs():
@@ -414,14 +407,7 @@ def write_model_data(path, entry: str, params: dict, n: int = 400, seed: int = 0
     from brdf_fit.io.npz import write_npz
 
     rng = np.random.default_rng(seed)
-
-    def dirs(m):
-        mu = rng.uniform(lo, 1.0, m)
-        phi = rng.uniform(0.0, 2.0 * np.pi, m)
-        s = np.sqrt(1.0 - mu * mu)
-        return np.stack([s * np.cos(phi), s * np.sin(phi), mu], -1)
-
-    wi, wo = dirs(n), dirs(n)
+    wi, wo = random_dirs(rng, n, lo), random_dirs(rng, n, lo)
     f = np.asarray(registry.get(entry).build(**params).eval(wi, wo))
     f = f * (1.0 + noise * rng.standard_normal(f.shape))
     write_npz(GonioData(wi=wi, wo=wo, value=f, channels=("R", "G", "B")), path)

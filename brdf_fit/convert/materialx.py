@@ -17,6 +17,7 @@ materialx``, an optional extra) against its standard libraries and returns what
 from __future__ import annotations
 
 import dataclasses
+import functools
 import re
 from xml.sax.saxutils import quoteattr
 
@@ -28,7 +29,8 @@ from brdf_fit.core.atomic import write_text_atomic
 from brdf_fit.models.openpbr import INPUT_TYPES, to_openpbr_inputs
 
 __all__ = ["MATERIALX_EXTRA", "ExportError", "MaterialXExport", "MaterialXNotFound",
-           "mtlx_document", "to_materialx", "valid_name", "validate_mtlx", "write_mtlx"]
+           "mtlx_document", "standard_libraries", "to_materialx", "valid_name", "validate_mtlx",
+           "write_mtlx"]
 
 #: how to get the MaterialX Python package (the message of :class:`MaterialXNotFound`)
 MATERIALX_EXTRA = "pip install 'brdf_fit[materialx]' (the materialx package, 1.39)"
@@ -121,17 +123,28 @@ def write_mtlx(path, exports: list[MaterialXExport], what: str = "fitted materia
     return path
 
 
-def validate_mtlx(text: str) -> tuple[bool, str]:
-    """``(valid, message)`` of MaterialX's ``Document.validate`` for the document ``text``,
-    read with the standard libraries (the ``materialx`` package; :class:`MaterialXNotFound`
-    without it)."""
+@functools.cache
+def standard_libraries():
+    """MaterialX's standard libraries (node definitions and graphs, ``open_pbr_surface``'s
+    among them) as one document, loaded once per process (:class:`MaterialXNotFound` without
+    the ``materialx`` package)."""
     try:
         import MaterialX as mx
     except ImportError:
-        raise MaterialXNotFound(f"validating a .mtlx document needs MaterialX: "
+        raise MaterialXNotFound(f"reading a .mtlx document needs MaterialX: "
                                 f"{MATERIALX_EXTRA}") from None
     libraries = mx.createDocument()
     mx.loadLibraries(mx.getDefaultDataLibraryFolders(), mx.getDefaultDataSearchPath(), libraries)
+    return libraries
+
+
+def validate_mtlx(text: str) -> tuple[bool, str]:
+    """``(valid, message)`` of MaterialX's ``Document.validate`` for the document ``text``,
+    read with the standard libraries (:func:`standard_libraries`; :class:`MaterialXNotFound`
+    without the ``materialx`` package)."""
+    libraries = standard_libraries()
+    import MaterialX as mx
+
     doc = mx.createDocument()
     mx.readFromXmlString(doc, text)
     doc.setDataLibrary(libraries)

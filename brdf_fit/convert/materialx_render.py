@@ -51,15 +51,15 @@ class MaterialXRenderUnavailable(RuntimeError):
     """MaterialX, moderngl or an EGL OpenGL context is missing."""
 
 
-@functools.cache
 def _libraries():
+    """MaterialX's standard libraries (:func:`brdf_fit.convert.materialx.standard_libraries`,
+    loaded once), missing MaterialX reported as :class:`MaterialXRenderUnavailable`."""
+    from brdf_fit.convert.materialx import MaterialXNotFound, standard_libraries
+
     try:
-        import MaterialX as mx
-    except ImportError:
+        return standard_libraries()
+    except MaterialXNotFound:
         raise MaterialXRenderUnavailable(f"MaterialX is not installed: {RENDER_EXTRA}") from None
-    lib = mx.createDocument()
-    mx.loadLibraries(mx.getDefaultDataLibraryFolders(), mx.getDefaultDataSearchPath(), lib)
-    return lib
 
 
 @functools.cache

@@ -23,6 +23,7 @@ from brdf_fit.core.validate import ParameterError, PrecisionWarning, check_param
 
 __all__ = [
     "node_input_values",
+    "node_param",
     "Param",
     "Entry",
     "UnknownModelError",
@@ -226,6 +227,16 @@ class Entry:
             "expected_failures": dict(self.expected_failures),
             "target": self.target,
         }
+
+
+def node_param(name: str, spec: tuple, default) -> Param:
+    """A native entry's registry parameter from ``spec = (doc, channels, lo, hi)`` and the
+    node's default (a grey default repeated over RGB for a channel parameter): the Blender and
+    OpenPBR entries' shared constructor."""
+    doc, channels, lo, hi = spec
+    if channels:
+        default = (default, default, default)
+    return Param(name, default, lo=lo, hi=hi, channels=channels, doc=doc)
 
 
 def node_input_values(params: dict, valid: tuple[str, ...], colours: tuple[str, ...],

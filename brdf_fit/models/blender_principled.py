@@ -105,7 +105,15 @@ from brdf_fit.core.frame import join, split
 from brdf_fit.core.fresnel import dielectric
 from brdf_fit.core.microfacet import GGX, reflect_about
 from brdf_fit.core.numerics import INV_PI, safe_div, safe_sqrt
-from brdf_fit.core.params import Channels, Entry, Param, Scalar, bounded, node_input_values
+from brdf_fit.core.params import (
+    Channels,
+    Entry,
+    Param,
+    Scalar,
+    bounded,
+    node_input_values,
+    node_param,
+)
 from brdf_fit.core.validate import check_param
 from brdf_fit.core.warp import sample_cosine_hemisphere
 from brdf_fit.models import _cycles as _cy
@@ -479,11 +487,7 @@ _ENTRY_PARAMS = {
 
 
 def _param(name: str) -> Param:
-    doc, channels, lo, hi = _ENTRY_PARAMS[name]
-    default = BLENDER_DEFAULTS[name]
-    if channels:
-        default = (default, default, default)
-    return Param(name, default, lo=lo, hi=hi, channels=channels, doc=doc)
+    return node_param(name, _ENTRY_PARAMS[name], BLENDER_DEFAULTS[name])
 
 
 _BASIC = ("base_color", "roughness", "metallic", "ior")

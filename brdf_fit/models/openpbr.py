@@ -105,11 +105,19 @@ import jax.numpy as jnp
 from brdf_fit.core.frame import join, split
 from brdf_fit.core.microfacet import GGX, reflect_about
 from brdf_fit.core.numerics import ALPHA_MIN, INV_PI, safe_sqrt
-from brdf_fit.core.params import Channels, Entry, Param, Scalar, bounded, node_input_values
+from brdf_fit.core.params import (
+    Channels,
+    Entry,
+    Param,
+    Scalar,
+    bounded,
+    node_input_values,
+    node_param,
+)
 from brdf_fit.core.validate import check_param
 from brdf_fit.core.warp import sample_cosine_hemisphere
 from brdf_fit.models._base import AbstractBRDF, QuadratureLobe, expand_channels
-from brdf_fit.models._lobes import finish_sample, sanitize
+from brdf_fit.models._lobes import finish_sample, half_geometry, sanitize
 from brdf_fit.models._materialx import (
     M_FLOAT_EPS,
     clamp_eps,
@@ -160,19 +168,6 @@ FUZZ_ROUGHNESS_MIN = 0.01
 _REF_MX = ("OpenPBR Surface specification v1.1 (2024), reflection lobes, as its reference "
            "implementation in MaterialX 1.39.5 computes them (libraries/bxdf/"
            "open_pbr_surface.mtlx; libraries/pbrlib/genglsl)")
-
-
-def _geometry(wi, wo):
-    """``(valid, wi, wo, h)`` as components: both directions above the horizon (elsewhere
-    replaced by the normal) and ``h = normalize(wi + wo)`` (the shader's ``normalize(L + V)``)."""
-    ix, iy, iz = split(wi)
-    ox, oy, oz = split(wo)
-    valid = (iz > 0) & (oz > 0)
-    ix, iy, iz = sanitize(valid, ix, iy, iz)
-    ox, oy, oz = sanitize(valid, ox, oy, oz)
-    hx, hy, hz = ix + ox, iy + oy, iz + oz
-    inv_len = 1.0 / jnp.sqrt(hx * hx + hy * hy + hz * hz)
-    return valid, (ix, iy, iz), (ox, oy, oz), (hx * inv_len, hy * inv_len, hz * inv_len)
 
 
 class OpenPBRSurface(AbstractBRDF):
@@ -270,7 +265,7 @@ class OpenPBRSurface(AbstractBRDF):
 
     def _terms(self, wi, wo):
         """``(valid, f, parts)``: the BRDF and, for the sampler, the lobes' throughputs."""
-        valid, (ix, iy, iz), (ox, oy, oz), (hx, hy, hz) = _geometry(wi, wo)
+        valid, (ix, iy, iz), (ox, oy, oz), (hx, hy, hz), _ = half_geometry(wi, wo)
         ch = self.channels()
 
         def ex(x):
@@ -381,7 +376,7 @@ class OpenPBRSurface(AbstractBRDF):
         return main, coat
 
     def pdf(self, wi, wo):
-        valid, (ix, iy, iz), (ox, oy, oz), (hx, hy, hz) = _geometry(wi, wo)
+        valid, (ix, iy, iz), (ox, oy, oz), (hx, hy, hz), _ = half_geometry(wi, wo)
         pd, pm, pc = self.lobe_probabilities(join(ox, oy, oz))
         main, coat = self._dists()
         # visible normals D G1(wo) (wo.h)/cos_o times dwh/dwi = 1/(4 wi.h)
@@ -441,11 +436,7 @@ _ENTRY_PARAMS = {
 
 
 def _param(name: str) -> Param:
-    doc, channels, lo, hi = _ENTRY_PARAMS[name]
-    default = OPENPBR_DEFAULTS[name]
-    if channels:
-        default = (default, default, default)
-    return Param(name, default, lo=lo, hi=hi, channels=channels, doc=doc)
+    return node_param(name, _ENTRY_PARAMS[name], OPENPBR_DEFAULTS[name])
 
 
 _BASIC = ("base_color", "base_metalness", "specular_roughness", "specular_ior")
