@@ -245,8 +245,6 @@ def node_input_values(params: dict, valid: tuple[str, ...], colours: tuple[str, 
     scalar, ``{name: [r, g, b]}`` for a colour (a grey value repeated), every given parameter.
     A name not in ``valid``, or a value of the wrong size, is a ``ValueError`` naming ``node``
     (the Blender and OpenPBR exports' shared conversion)."""
-    import numpy as np
-
     out = {}
     for name, value in params.items():
         if name not in valid:
