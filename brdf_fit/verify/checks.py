@@ -29,7 +29,6 @@ Checks (name: statistic <= threshold unless stated):
 from __future__ import annotations
 
 import dataclasses
-import itertools
 import math
 import time
 from collections.abc import Callable, Iterable
@@ -46,9 +45,25 @@ from brdf_fit.core.fresnel import ConstantFresnel
 from brdf_fit.core.microfacet import VCavity, vcavity_pdf_visible
 from brdf_fit.models import MicrofacetBRDF
 from brdf_fit.models._base import AbstractBRDF, evaluate
-from brdf_fit.models._lobes import sample_weight
 from brdf_fit.verify import albedo
 from brdf_fit.verify.chi2 import chi2_test_brdf
+from brdf_fit.verify.hard_cases import (
+    HARD_COS,
+    HARD_PARAMS,
+    edge_values,
+    hard_case_directions,
+    hard_case_params,
+    hard_values,
+    unit_direction,
+)
+from brdf_fit.verify.negative_controls import (
+    AbstractNegativeControl,
+    DriftingSampler,
+    NonReciprocal,
+    Overbright,
+    OverweightSampler,
+    PdfScaled,
+)
 
 __all__ = [
     "CheckResult",
@@ -71,6 +86,11 @@ __all__ = [
     "DriftingSampler",
     "hard_values",
     "OverweightSampler",
+    "HARD_COS",
+    "HARD_PARAMS",
+    "edge_values",
+    "hard_case_directions",
+    "hard_case_params",
 ]
 
 #: Tolerance of the energy and white-furnace checks: the lobe-adapted quadrature reaches 1e-6
@@ -189,24 +209,19 @@ def _microfacet_lobes(model) -> list[MicrofacetBRDF]:
     return [lobe for _, lobe in _lobes(model) if isinstance(lobe, MicrofacetBRDF)]
 
 
-def _unit(cos, phi=0.3):
-    s = math.sqrt(max(0.0, 1.0 - cos * cos))
-    return np.array([s * math.cos(phi), s * math.sin(phi), cos])
-
-
 def _views(model, cosines) -> list[np.ndarray]:
     """View directions: each cosine at one azimuth, and at three for anisotropic models
     (:meth:`~brdf_fit.models.AbstractBRDF.is_anisotropic`: a microfacet lobe with ``alpha_y``, or
     a lobe whose class sets ``anisotropic = True``)."""
     aniso = model.is_anisotropic()
     phis = (0.3, 0.3 + math.pi / 4, 0.3 + math.pi / 2) if aniso else (0.3,)
-    return [_unit(c, p) for c in cosines for p in phis]
+    return [unit_direction(c, p) for c in cosines for p in phis]
 
 
 def _rule_for(lobe, wo) -> quadrature.Rule:
     """Quadrature rule over wi adapted to one lobe (:func:`brdf_fit.verify.albedo.lobe_rule`);
     the negative controls get the rule of the lobe they wrap."""
-    while isinstance(lobe, _AbstractNegativeControl):
+    while isinstance(lobe, AbstractNegativeControl):
         lobe = lobe.inner
     return albedo.lobe_rule(lobe, jnp.asarray(wo))
 
@@ -449,102 +464,7 @@ def check_chi2(model, name="model", cosines=STAT_COS, n=100_000, seed=4, alpha=0
 
 
 # --------------------------------------------------------------------------- hard-case grid
-
-HARD_COS = (1e-7, 1e-4, 1e-2, 0.5, 1.0)
-HARD_PARAMS = {
-    "alpha": (1e-4, 1e-3, 0.05, 0.5, 1.0),
-    "alpha_x": (1e-4, 1e-3, 0.05, 0.5, 1.0),
-    "alpha_y": (1e-4, 0.05, 1.0),
-    "eta": (1.0, 1.5, 1 / 1.5),
-    "k": (0.0, 1.0, 100.0),
-    "exponent": (0.0, 1.0, 100.0, 1e4, 1e6),
-}
-
-
-def hard_case_directions() -> tuple[np.ndarray, np.ndarray]:
-    """Pairs: all cosine combinations in generic position, same azimuth, opposite azimuths
-    (grazing pairs make the half vector vanish in the limit), wi == wo, wi == mirror(wo), and two
-    exactly-on-horizon pairs (one with wi == -wo)."""
-    wi, wo = [], []
-    for ci, co in itertools.product(HARD_COS, HARD_COS):
-        for pi_, po in ((0.3, 2.1), (1.0, 1.0), (0.0, math.pi)):
-            wi.append(_unit(ci, pi_))
-            wo.append(_unit(co, po))
-    for c in HARD_COS:
-        w = _unit(c, 0.7)
-        wi += [w, w * np.array([-1.0, -1.0, 1.0])]
-        wo += [w, w]
-    wi += [np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0])]
-    wo += [np.array([-1.0, 0.0, 0.0]), np.array([1.0, 0.0, 0.0])]
-    return np.asarray(wi), np.asarray(wo)
-
-
-def hard_values(param, hard=None) -> tuple[float, ...]:
-    """The hard values (``hard``, default ``HARD_PARAMS[param.name]``) of a registry parameter
-    that lie in its valid interval, plus its finite upper bound when that is below the largest
-    hard value (an exponent capped at 2048 is tested at 2048, not at 1e6)."""
-    def inside(v):
-        lo_ok = param.lo is None or (v > param.lo if param.lo_open else v >= param.lo)
-        hi_ok = param.hi is None or (v < param.hi if param.hi_open else v <= param.hi)
-        return lo_ok and hi_ok
-
-    hard = HARD_PARAMS[param.name] if hard is None else hard
-    vals = [v for v in hard if inside(v)]
-    if param.hi is not None and not param.hi_open and param.hi < max(hard) and param.hi not in vals:
-        vals.append(float(param.hi))
-    return tuple(vals)
-
-
-#: How close to an open interval end (relative to the interval's scale) the edge values go.
-EDGE_OPEN_REL = 1e-4
-#: An unbounded parameter is tested at ``EDGE_UNBOUNDED_FACTOR`` times its default (or at that
-#: value when the default is 0).
-EDGE_UNBOUNDED_FACTOR = 1e3
-
-
-def edge_values(param) -> tuple[float, ...]:
-    """The ends of a parameter's valid interval: closed finite ends as they are, open ends
-    approached to :data:`EDGE_OPEN_REL` of the scale, unbounded ends at
-    :data:`EDGE_UNBOUNDED_FACTOR` times the default. For parameters :data:`HARD_PARAMS` does not
-    name (the catalogue's ``sigma``, ``nu``, ``tau``, lobe coefficients, ...)."""
-    d = np.asarray(param.default_value(), float)
-    dmax = float(np.max(np.abs(d))) if d.size else 1.0
-    scale = (param.hi - param.lo) if (param.lo is not None and param.hi is not None) else \
-        max(dmax, 1.0)
-    vals = []
-    if param.lo is not None:
-        vals.append(param.lo + EDGE_OPEN_REL * scale if param.lo_open else param.lo)
-    else:
-        vals.append(-EDGE_UNBOUNDED_FACTOR * max(dmax, 1.0))
-    if param.hi is not None:
-        vals.append(param.hi - EDGE_OPEN_REL * scale if param.hi_open else param.hi)
-    else:
-        vals.append(EDGE_UNBOUNDED_FACTOR * (dmax if dmax > 0 else 1.0))
-    return tuple(dict.fromkeys(float(v) for v in vals))
-
-
-def hard_case_params(entry, hard=None) -> dict[str, np.ndarray]:
-    """Parameter sets of the hard-case grid, stacked: the product of the hard values of the
-    parameters :data:`HARD_PARAMS` (or ``hard``) names, then each other parameter at each of its
-    :func:`edge_values` with the rest at their defaults (one at a time: a product over every
-    parameter of a nine-parameter model would be thousands of sets)."""
-    hard = HARD_PARAMS if hard is None else hard
-    d = entry.defaults()
-    names = [n for n in entry.param_names if n in hard]
-    combos = list(itertools.product(*[hard_values(entry.param(n), hard[n]) for n in names])) or [()]
-    sets = [{n: c[names.index(n)] if n in names else d[n] for n in entry.param_names}
-            for c in combos]
-    for n in entry.param_names:
-        if n in names:
-            continue
-        for v in edge_values(entry.param(n)):
-            sets.append({**{m: d[m] for m in entry.param_names}, n: v})
-    grid = {}
-    for name in entry.param_names:
-        rows = [np.broadcast_to(np.asarray(s[name], float), d[name].shape) for s in sets]
-        grid[name] = np.stack(rows) if rows else np.zeros((0, *d[name].shape))
-    return grid
-
+# the grid itself: brdf_fit.verify.hard_cases
 
 def check_finite(entry, name=None, dtypes=(jnp.float64, jnp.float32)) -> CheckResult:
     """Values and gradients on the hard-case grid, vmapped over the parameter grid."""
@@ -633,105 +553,3 @@ def run_checks(
                                 expected_failure=declared.get(c) if r.applicable else None)
         results.append(r)
     return results
-
-
-# --------------------------------------------------------------------------- negative controls
-
-
-class _AbstractNegativeControl(AbstractBRDF):
-    """A model that wraps a model ``inner`` (a field of each concrete control) and breaks one
-    property on purpose (abstract)."""
-
-
-class PdfScaled(_AbstractNegativeControl):
-    """Negative control: reports ``factor * pdf`` (sampler unchanged)."""
-
-    inner: AbstractBRDF
-    factor: float = 1.1
-
-    def eval(self, wi, wo):
-        return self.inner.eval(wi, wo)
-
-    def pdf(self, wi, wo):
-        return self.factor * self.inner.pdf(wi, wo)
-
-    def sample(self, wo, uc, u):
-        s = self.inner.sample(wo, uc, u)
-        return type(s)(wi=s.wi, pdf=self.factor * s.pdf, weight=s.weight / self.factor)
-
-
-class NonReciprocal(_AbstractNegativeControl):
-    """Negative control: ``f * (1 + strength (cos_i - cos_o))`` (positive, not symmetric)."""
-
-    inner: AbstractBRDF
-    strength: float = 0.3
-
-    def eval(self, wi, wo):
-        g = 1.0 + self.strength * (wi[..., 2] - wo[..., 2])
-        f = self.inner.eval(wi, wo)
-        return f * (g if f.ndim == g.ndim else g[..., None])
-
-    def pdf(self, wi, wo):
-        return self.inner.pdf(wi, wo)
-
-    def sample(self, wo, uc, u):
-
-        s = self.inner.sample(wo, uc, u)
-        return type(s)(wi=s.wi, pdf=s.pdf, weight=sample_weight(self, s.wi, wo, s.pdf))
-
-
-class Overbright(_AbstractNegativeControl):
-    """Negative control: ``factor * f`` with the same sampler (reflects more than it receives)."""
-
-    inner: AbstractBRDF
-    factor: float = 1.25
-
-    def eval(self, wi, wo):
-        return self.factor * self.inner.eval(wi, wo)
-
-    def pdf(self, wi, wo):
-        return self.inner.pdf(wi, wo)
-
-    def sample(self, wo, uc, u):
-        s = self.inner.sample(wo, uc, u)
-        return type(s)(wi=s.wi, pdf=s.pdf, weight=self.factor * s.weight)
-
-
-class OverweightSampler(_AbstractNegativeControl):
-    """Negative control: ``sample`` returns ``factor`` times the correct weight (eval and pdf
-    untouched): a sampler whose weights are biased, also when they have no variance."""
-
-    inner: AbstractBRDF
-    factor: float = 1.0001
-
-    def eval(self, wi, wo):
-        return self.inner.eval(wi, wo)
-
-    def pdf(self, wi, wo):
-        return self.inner.pdf(wi, wo)
-
-    def sample(self, wo, uc, u):
-        s = self.inner.sample(wo, uc, u)
-        return type(s)(wi=s.wi, pdf=s.pdf, weight=self.factor * s.weight)
-
-
-class DriftingSampler(_AbstractNegativeControl):
-    """Negative control: draws with ``u0 -> u0^(1 + drift)`` but reports the inner pdf and the
-    weight computed from it, i.e. a sampler that drifted off its pdf."""
-
-    inner: AbstractBRDF
-    drift: float = 0.1
-
-    def eval(self, wi, wo):
-        return self.inner.eval(wi, wo)
-
-    def pdf(self, wi, wo):
-        return self.inner.pdf(wi, wo)
-
-    def sample(self, wo, uc, u):
-
-        u = u.at[..., 0].set(u[..., 0] ** (1.0 + self.drift))
-        s = self.inner.sample(wo, uc, u)
-        pdf = self.inner.pdf(s.wi, wo)
-        return type(s)(wi=s.wi, pdf=pdf, weight=sample_weight(self, s.wi, wo, pdf))
-
