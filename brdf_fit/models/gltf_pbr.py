@@ -5,8 +5,9 @@ Implementation", KhronosGroup/glTF ``specification/2.0/Specification.adoc``), wi
 extensions ``KHR_materials_ior``, ``KHR_materials_specular``, ``KHR_materials_anisotropy``,
 ``KHR_materials_sheen`` and ``KHR_materials_clearcoat`` (KhronosGroup/glTF
 ``extensions/2.0/Khronos/<name>/README.md``), parametrised as a glTF material's factors, so that
-a model fitted here is written as a glTF material with no loss (:func:`to_gltf_material`;
-:func:`from_gltf_material` reads one back). Textures, normal maps and the clearcoat normal are
+a model fitted here is written as a glTF material with no loss
+(:func:`brdf_fit.models.gltf_material.to_gltf_material`; ``from_gltf_material`` reads one
+back). Textures, normal maps and the clearcoat normal are
 not modelled (the factors are the whole material).
 
 Notation: ``L = wi`` (toward the light), ``V = wo`` (toward the viewer), ``N = (0, 0, 1)``,
@@ -136,8 +137,6 @@ the horizon is a failed sample (pdf 0, weight 0).
 from __future__ import annotations
 
 import functools
-import importlib.resources
-import math
 
 import jax.numpy as jnp
 import numpy as np
@@ -150,21 +149,33 @@ from brdf_fit.core.numerics import (
     INV_TWO_PI,
     TWO_PI,
     pow5,
-    safe_div,
     safe_norm3,
-    safe_pow,
 )
 from brdf_fit.core.params import Channels, Entry, Param, Scalar, bounded
-from brdf_fit.core.table import Table, load_table
 from brdf_fit.core.validate import ParameterError, check_param, concrete
 from brdf_fit.core.warp import sample_cosine_hemisphere
 from brdf_fit.models._base import AbstractBRDF, QuadratureLobe, expand_channels
 from brdf_fit.models._lobes import finish_sample, half_geometry, sanitize
+from brdf_fit.models.charlie_sheen import (
+    CHARLIE_L_R0,
+    CHARLIE_L_R1,
+    SHEEN_ROUGHNESS_MIN,
+    SHEEN_TABLE_ERROR,
+    SHEEN_TABLE_FILE,
+    SHEEN_TABLE_MU_MIN,
+    SHEEN_TABLE_N_MU,
+    SHEEN_TABLE_N_ROUGHNESS,
+    charlie_lambda,
+    charlie_lobe,
+    charlie_sheen,
+    sheen_albedo,
+)
 
 __all__ = [
     "CHARLIE_L_R0",
     "CHARLIE_L_R1",
     "CLEARCOAT_F0",
+    "GLTF_COLOURS",
     "GLTF_DEFAULTS",
     "GltfPBR",
     "P_DEFENSIVE",
@@ -177,38 +188,13 @@ __all__ = [
     "SHEEN_TABLE_N_ROUGHNESS",
     "charlie_lambda",
     "charlie_sheen",
-    "from_gltf_material",
     "registry_entries",
     "sheen_albedo",
-    "to_gltf_material",
 ]
 
-#: Estevez & Kulla 2017's fitted ``l(x) = a/(1 + b x^c) + d x + e`` at ``r = 0``: ``(a, b, c, d,
-#: e)`` (the extension's ``l(x, alphaG)`` at ``oneMinusAlphaSq = 1``).
-CHARLIE_L_R0 = (25.3245, 3.32435, 0.16801, -1.27393, -4.85967)
-#: The same at ``r = 1`` (``oneMinusAlphaSq = 0``); between them ``p_1 + (p_0 - p_1)(1 - r)^2``.
-CHARLIE_L_R1 = (21.5473, 3.82987, 0.19823, -1.97760, -4.32054)
 #: ``fresnel_coat``'s ``f0 = ((1 - ior)/(1 + ior))^2`` at the clearcoat's fixed ``ior = 1.5``;
 #: the extension writes 0.04.
 CLEARCOAT_F0 = 0.04
-#: Sheen roughness whose square is ``ALPHA_MIN``: the sheen ``r`` is ``max(sr^2, ALPHA_MIN)``, so
-#: everything below it evaluates as it (and the albedo table starts there).
-SHEEN_ROUGHNESS_MIN = math.sqrt(ALPHA_MIN)
-#: The sheen albedo table's smallest ``mu`` (module docstring, epsilons).
-SHEEN_TABLE_MU_MIN = 1e-6
-#: Endpoint nodes of the sheen albedo table: ``log10(sheenRoughness)`` in ``[-2, 0]`` and
-#: ``log10(mu)`` in ``[-6, 0]`` (64 and 32 nodes per decade). Measured cubic-lookup errors at
-#: half this density: 2.1e-4 (97 ``mu`` nodes, sheenRoughness 0.01) and 1.4e-4 (65 roughness
-#: nodes); at this one 1.3e-5 and 6.7e-6 (the h^4 of a cubic).
-SHEEN_TABLE_N_ROUGHNESS = 129
-SHEEN_TABLE_N_MU = 193
-#: The packaged ``E(mu, sheenRoughness)`` table (``brdf_fit/resources/tables``), written by
-#: ``python -m brdf_fit.tables.sheen``.
-SHEEN_TABLE_FILE = "charlie_sheen_E.npz"
-#: Largest absolute error of :func:`sheen_albedo` measured by ``brdf_fit.tables.sheen`` (cubic
-#: lookup against the quadrature at every cell centre, plus the quadrature's own error; recorded
-#: in the table's metadata, ``accuracy.max_abs``).
-SHEEN_TABLE_ERROR = 3e-5
 #: The cosine lobe's floor probability in :meth:`GltfPBR.sample` (module docstring).
 P_DEFENSIVE = 0.05
 #: The sheen albedo the lobe probabilities assume (:meth:`GltfPBR.lobe_probabilities`): ``E`` of
@@ -231,90 +217,12 @@ GLTF_DEFAULTS = {
     "clearcoat": 0.0,
     "clearcoat_roughness": 0.0,
 }
-_COLOURS = ("base_color", "specular_color", "sheen_color")
+GLTF_COLOURS = ("base_color", "specular_color", "sheen_color")
 
 _SPEC = "KhronosGroup/glTF specification/2.0/Specification.adoc, Appendix B"
 _EXT = "KhronosGroup/glTF extensions/2.0/Khronos/{}/README.md"
 _CHARLIE = ("A. Conty Estevez, C. Kulla, Production Friendly Microfacet Sheen BRDF, SIGGRAPH "
             "2017")
-
-
-# ----------------------------------------------------------------------------- sheen
-
-
-def charlie_lambda(mu, r):
-    """Estevez & Kulla's fitted ``Lambda(mu)`` at sheen roughness ``r`` (module docstring):
-    ``exp(l(mu))`` below ``mu = 0.5``, ``exp(2 l(0.5) - l(1 - mu))`` above. ``mu`` in [0, 1]."""
-    t = (1.0 - r) * (1.0 - r)
-    a, b, c, d, e = (p1 + (p0 - p1) * t for p0, p1 in zip(CHARLIE_L_R0, CHARLIE_L_R1,
-                                                          strict=True))
-
-    def ell(x):
-        return a / (1.0 + b * safe_pow(x, c)) + d * x + e
-
-    return jnp.where(mu < 0.5, jnp.exp(ell(mu)), jnp.exp(2.0 * ell(0.5) - ell(1.0 - mu)))
-
-
-def _charlie_parts(hx, hy, iz, oz, sheen_roughness):
-    """``D_s(H) / ((1 + Lambda(mu_o) + Lambda(mu_i)) 4 mu_o mu_i)`` on sanitised components
-    (``iz, oz > 0``): the sheen lobe per unit sheen colour."""
-    r = jnp.maximum(sheen_roughness * sheen_roughness, ALPHA_MIN)
-    inv_r = 1.0 / r
-    s2 = hx * hx + hy * hy  # sin^2(theta_H) without the cancellation of 1 - (N.H)^2
-    D = (2.0 + inv_r) * INV_TWO_PI * safe_pow(s2, 0.5 * inv_r)
-    lam = charlie_lambda(jnp.stack(jnp.broadcast_arrays(oz, iz)), r)  # one program for both
-    g = 1.0 + lam[0] + lam[1]
-    # 1/(4 mu_o mu_i) as a product of reciprocals (their product underflows nothing at 1e-7)
-    return D * (safe_div(0.5, iz) * safe_div(0.5, oz)) / g
-
-
-def charlie_sheen(wi, wo, sheen_roughness):
-    """The sheen lobe ``f_sheen / sheenColor`` of KHR_materials_sheen (module docstring) at
-    ``(..., 3)`` directions: ``D_s V_s``, 0 at or below the horizon. What the packaged albedo
-    table integrates (:mod:`brdf_fit.tables.sheen`)."""
-    valid, (_, _, iz), (_, _, oz), (hx, hy, _), _ = half_geometry(wi, wo)
-    return jnp.where(valid, _charlie_parts(hx, hy, iz, oz, sheen_roughness), 0.0)
-
-
-@functools.lru_cache(maxsize=1)
-def _packaged_table() -> Table:
-    path = importlib.resources.files("brdf_fit") / "resources" / "tables" / SHEEN_TABLE_FILE
-    with importlib.resources.as_file(path) as p:
-        return load_table(p)
-
-
-@functools.lru_cache(maxsize=4)
-def _typed_tables(dtype_name: str) -> tuple[Table, Table]:
-    """The packaged table in ``dtype``, and the same values as a 1-D table over the roughness
-    axis whose channels are the ``mu`` nodes (:func:`sheen_albedo`)."""
-    t = _packaged_table()
-    values = np.asarray(t.values, np.dtype(dtype_name))
-    ax_r, ax_mu = t.axes
-    rows = Table(values[..., 0], (ax_r,), tuple(f"mu_{k}" for k in range(ax_mu.n)))
-    return Table(values, t.axes, t.channels), rows
-
-
-def sheen_albedo(mu, sheen_roughness):
-    """``E(mu, sheenRoughness)``: the directional albedo of :func:`charlie_sheen`, looked up in
-    the packaged table (cubic in ``log10(sheenRoughness)`` on ``[log10 SHEEN_ROUGHNESS_MIN, 0]``
-    and in ``log10(mu)`` on ``[log10 SHEEN_TABLE_MU_MIN, 0]``, both clamped to the grid).
-    Differentiable in both; in ``mu``'s float dtype.
-
-    The tensor-product cubic of :meth:`~brdf_fit.core.table.Table.lookup` is separable: for one
-    (scalar) roughness, as in a model, the 4 table rows around it are interpolated once into a
-    column over the ``mu`` nodes, which each direction then interpolates (4 gathers per
-    direction instead of 16: the same values to rounding, and half the compilation time under
-    ``grad``, measured)."""
-    mu = jnp.asarray(mu)
-    dt = mu.dtype if jnp.issubdtype(mu.dtype, jnp.floating) else jnp.result_type(float)
-    full, rows = _typed_tables(jnp.dtype(dt).name)
-    sr = jnp.asarray(sheen_roughness).astype(dt)
-    x_r = jnp.log10(jnp.maximum(sr, SHEEN_ROUGHNESS_MIN))
-    x_mu = jnp.log10(jnp.maximum(mu.astype(dt), SHEEN_TABLE_MU_MIN))
-    if x_r.ndim:
-        return full.lookup(x_r, x_mu, order=3)[..., 0]
-    column = rows.lookup(x_r, order=3)
-    return Table(column[:, None], full.axes[1:], ("E",)).lookup(x_mu, order=3)[..., 0]
 
 
 # ----------------------------------------------------------------------------- the model
@@ -384,7 +292,7 @@ class GltfPBR(AbstractBRDF):
         if v is not None and v.dtype != object and np.any((v > 0.0) & (v < 1.0)):
             raise ParameterError(f"GltfPBR: parameter 'ior' must be 0 or >= 1 "
                                  f"(KHR_materials_ior), got {v.tolist()}")
-        for name in _COLOURS:
+        for name in GLTF_COLOURS:
             shape = jnp.shape(getattr(self, name))
             if len(shape) > 1:
                 raise ParameterError(f"GltfPBR: parameter {name!r} must be a scalar or a 1-D "
@@ -460,7 +368,7 @@ class GltfPBR(AbstractBRDF):
         material = (1.0 - self.metallic) * dielectric + self.metallic * metal
         # sheen on top, with albedo scaling (KHR_materials_sheen)
         sr = self.sheen_roughness
-        sheen = self.sheen_color * ex(_charlie_parts(hx, hy, iz, oz, sr))
+        sheen = self.sheen_color * ex(charlie_lobe(hx, hy, iz, oz, sr))
         m_sheen = self._sheen_max()
         e = sheen_albedo(jnp.stack(jnp.broadcast_arrays(oz, iz)), sr)  # one lookup for both
         scaling = 1.0 - m_sheen * jnp.maximum(e[0], e[1])
@@ -561,122 +469,6 @@ class GltfPBR(AbstractBRDF):
             + self.clearcoat
 
 
-# ----------------------------------------------------------------------------- glTF materials
-
-
-def _floats(name, value, n: int | None):
-    """A parameter as a list of Python floats (``n`` channels, a scalar broadcast) or a float."""
-    v = np.asarray(value, dtype=float).reshape(-1)
-    if n is None:
-        if v.size != 1:
-            raise ValueError(f"{name} must be a scalar, got {v.size} values")
-        return float(v[0])
-    if v.size == 1:
-        v = np.repeat(v, n)
-    if v.size != n:
-        raise ValueError(f"{name} must be RGB (3 values) or grey (1), got {v.size} values")
-    return [float(x) for x in v]
-
-
-def _check_range(name, v, lo=None, hi=None):
-    vals = v if isinstance(v, list) else [v]
-    if not all(math.isfinite(x) for x in vals):
-        raise ValueError(f"{name} must be finite, got {v}")
-    if (lo is not None and min(vals) < lo) or (hi is not None and max(vals) > hi):
-        rng = f"[{lo:g}, {'inf' if hi is None else f'{hi:g}'}]"
-        raise ValueError(f"{name} = {v} is outside the glTF range {rng}")
-
-
-def to_gltf_material(params: dict, name: str) -> tuple[dict, list[str]]:
-    """The glTF 2.0 ``materials[]`` object of :class:`GltfPBR` parameters (registry names; the
-    missing ones take the specification's defaults, :data:`GLTF_DEFAULTS`) and the sorted
-    extensions it uses. Lossless: :func:`from_gltf_material` of it evaluates as
-    ``GltfPBR(**params)`` does.
-
-    ``pbrMetallicRoughness`` is always written. An extension is written only where it changes
-    the BRDF, and in it only the values that differ from its defaults: ``KHR_materials_ior`` and
-    ``KHR_materials_specular`` when ``metallic < 1`` (a pure metal has no dielectric part),
-    ``KHR_materials_anisotropy`` when ``anisotropy_strength > 0``, ``KHR_materials_sheen`` when a
-    sheen colour channel is > 0, ``KHR_materials_clearcoat`` when ``clearcoat > 0`` (an extension
-    whose layer is off changes nothing, whatever its other values). Values outside the glTF
-    ranges (which no material could hold) raise :class:`ValueError`."""
-    unknown = set(params) - set(GLTF_DEFAULTS)
-    if unknown:
-        raise ValueError(f"not GltfPBR parameters: {sorted(unknown)}; valid: "
-                         f"{', '.join(GLTF_DEFAULTS)}")
-    p = {k: _floats(k, params.get(k, v), 3 if k in _COLOURS else None)
-         for k, v in GLTF_DEFAULTS.items()}
-    for k in ("base_color", "metallic", "roughness", "specular_factor", "anisotropy_strength",
-              "sheen_color", "sheen_roughness", "clearcoat", "clearcoat_roughness"):
-        _check_range(k, p[k], 0.0, 1.0)
-    _check_range("specular_color", p["specular_color"], 0.0)
-    _check_range("anisotropy_rotation", p["anisotropy_rotation"])
-    _check_range("ior", p["ior"], 0.0)
-    if 0.0 < p["ior"] < 1.0:
-        raise ValueError(f"ior = {p['ior']} is not a glTF ior (0 or >= 1, KHR_materials_ior)")
-    mat: dict = {
-        "name": str(name),
-        "pbrMetallicRoughness": {
-            "baseColorFactor": p["base_color"] + [1.0],
-            "metallicFactor": p["metallic"],
-            "roughnessFactor": p["roughness"],
-        },
-    }
-    ext: dict = {}
-    if p["metallic"] < 1.0:
-        if p["ior"] != 1.5:
-            ext["KHR_materials_ior"] = {"ior": p["ior"]}
-        spec = {}
-        if p["specular_factor"] != 1.0:
-            spec["specularFactor"] = p["specular_factor"]
-        if p["specular_color"] != [1.0, 1.0, 1.0]:
-            spec["specularColorFactor"] = p["specular_color"]
-        if spec:
-            ext["KHR_materials_specular"] = spec
-    if p["anisotropy_strength"] > 0.0:
-        ext["KHR_materials_anisotropy"] = {"anisotropyStrength": p["anisotropy_strength"]}
-        if p["anisotropy_rotation"] != 0.0:
-            ext["KHR_materials_anisotropy"]["anisotropyRotation"] = p["anisotropy_rotation"]
-    if max(p["sheen_color"]) > 0.0:
-        ext["KHR_materials_sheen"] = {"sheenColorFactor": p["sheen_color"]}
-        if p["sheen_roughness"] != 0.0:
-            ext["KHR_materials_sheen"]["sheenRoughnessFactor"] = p["sheen_roughness"]
-    if p["clearcoat"] > 0.0:
-        ext["KHR_materials_clearcoat"] = {"clearcoatFactor": p["clearcoat"]}
-        if p["clearcoat_roughness"] != 0.0:
-            ext["KHR_materials_clearcoat"]["clearcoatRoughnessFactor"] = \
-                p["clearcoat_roughness"]
-    if ext:
-        mat["extensions"] = ext
-    return mat, sorted(ext)
-
-
-def from_gltf_material(material: dict) -> GltfPBR:
-    """The :class:`GltfPBR` of a glTF 2.0 ``materials[]`` object: its factors with the
-    specification's defaults, and the five extensions of this module where present (textures
-    and other extensions are not read)."""
-    pbr = material.get("pbrMetallicRoughness", {}) or {}
-    ext = material.get("extensions", {}) or {}
-
-    def get(block, key, default):
-        return jnp.asarray((ext.get(block, {}) or {}).get(key, default), dtype=float)
-
-    return GltfPBR(
-        base_color=jnp.asarray(pbr.get("baseColorFactor", [1.0, 1.0, 1.0, 1.0])[:3], float),
-        metallic=jnp.asarray(pbr.get("metallicFactor", 1.0), float),
-        roughness=jnp.asarray(pbr.get("roughnessFactor", 1.0), float),
-        ior=get("KHR_materials_ior", "ior", 1.5),
-        specular_factor=get("KHR_materials_specular", "specularFactor", 1.0),
-        specular_color=get("KHR_materials_specular", "specularColorFactor", [1.0, 1.0, 1.0]),
-        anisotropy_strength=get("KHR_materials_anisotropy", "anisotropyStrength", 0.0),
-        anisotropy_rotation=get("KHR_materials_anisotropy", "anisotropyRotation", 0.0),
-        sheen_color=get("KHR_materials_sheen", "sheenColorFactor", [0.0, 0.0, 0.0]),
-        sheen_roughness=get("KHR_materials_sheen", "sheenRoughnessFactor", 0.0),
-        clearcoat=get("KHR_materials_clearcoat", "clearcoatFactor", 0.0),
-        clearcoat_roughness=get("KHR_materials_clearcoat", "clearcoatRoughnessFactor", 0.0),
-    )
-
-
 # ----------------------------------------------------------------------------- registry
 
 #: Registry defaults: a representative dielectric with each entry's extension switched on (the
@@ -731,7 +523,8 @@ def registry_entries():
     B: base_color, metallic, roughness), ``gltf-pbr-specular`` (+ KHR_materials_specular;
     ``ior`` stays 1.5: for reflection it enters only through ``f0_ior specularColor``, so it is
     exactly degenerate with ``specular_color``), ``gltf-pbr-anisotropy``, ``gltf-pbr-sheen``,
-    ``gltf-pbr-clearcoat``; each exports to a glTF material with :func:`to_gltf_material`."""
+    ``gltf-pbr-clearcoat``; each exports to a glTF material with
+    :func:`~brdf_fit.models.gltf_material.to_gltf_material`."""
     sampler = ("cosine / uniform (sheen) / GGX visible normals (base, anisotropic, and "
                "clearcoat) by Schlick estimates at mu_o, exact mixture pdf")
     entries = [
@@ -784,6 +577,8 @@ _COUPLED = ("the dielectric mix weights the diffuse by 1 - max3(F) and the sheen
 
 
 def _native_export(params: dict) -> tuple[dict, list[str]]:
-    """``Entry.native_export`` of the glTF entries: :func:`to_gltf_material` (the exporter
-    names the material)."""
+    """``Entry.native_export`` of the glTF entries:
+    :func:`~brdf_fit.models.gltf_material.to_gltf_material` (the exporter names the material)."""
+    from brdf_fit.models.gltf_material import to_gltf_material  # it imports this module
+
     return to_gltf_material(params, "")

@@ -39,7 +39,7 @@ import numpy as np
 from brdf_fit._version import __version__
 from brdf_fit.core.quadrature import gauss_legendre_interval
 from brdf_fit.core.table import Axis, Table
-from brdf_fit.models.gltf_pbr import (
+from brdf_fit.models.charlie_sheen import (
     SHEEN_ROUGHNESS_MIN,
     SHEEN_TABLE_FILE,
     SHEEN_TABLE_MU_MIN,
