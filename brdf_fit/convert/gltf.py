@@ -82,7 +82,7 @@ from brdf_fit.core.atomic import write_text_atomic
 from brdf_fit.core.numerics import ALPHA_MIN, INV_PI
 from brdf_fit.core.params import UnknownModelError
 from brdf_fit.core.validate import ParameterError
-from brdf_fit.models.gltf_material import from_gltf_material
+from brdf_fit.models.gltf_pbr import from_gltf_material
 
 __all__ = [
     "ExportError",

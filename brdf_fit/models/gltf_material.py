@@ -12,9 +12,24 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
-from brdf_fit.models.gltf_pbr import GLTF_COLOURS, GLTF_DEFAULTS, GltfPBR
+__all__ = ["GLTF_DEFAULTS", "GLTF_COLOURS", "to_gltf_material", "gltf_material_params"]
 
-__all__ = ["to_gltf_material", "from_gltf_material"]
+#: The specification's defaults of every parameter (the extensions off); also the class's.
+GLTF_DEFAULTS = {
+    "base_color": (1.0, 1.0, 1.0),
+    "metallic": 1.0,
+    "roughness": 1.0,
+    "ior": 1.5,
+    "specular_factor": 1.0,
+    "specular_color": (1.0, 1.0, 1.0),
+    "anisotropy_strength": 0.0,
+    "anisotropy_rotation": 0.0,
+    "sheen_color": (0.0, 0.0, 0.0),
+    "sheen_roughness": 0.0,
+    "clearcoat": 0.0,
+    "clearcoat_roughness": 0.0,
+}
+GLTF_COLOURS = ("base_color", "specular_color", "sheen_color")
 
 
 def _floats(name, value, n: int | None):
@@ -43,8 +58,8 @@ def _check_range(name, v, lo=None, hi=None):
 def to_gltf_material(params: dict, name: str) -> tuple[dict, list[str]]:
     """The glTF 2.0 ``materials[]`` object of :class:`GltfPBR` parameters (registry names; the
     missing ones take the specification's defaults, :data:`GLTF_DEFAULTS`) and the sorted
-    extensions it uses. Lossless: :func:`from_gltf_material` of it evaluates as
-    ``GltfPBR(**params)`` does.
+    extensions it uses. Lossless: :func:`~brdf_fit.models.gltf_pbr.from_gltf_material` of it
+    evaluates as ``GltfPBR(**params)`` does.
 
     ``pbrMetallicRoughness`` is always written. An extension is written only where it changes
     the BRDF, and in it only the values that differ from its defaults: ``KHR_materials_ior`` and
@@ -104,17 +119,17 @@ def to_gltf_material(params: dict, name: str) -> tuple[dict, list[str]]:
     return mat, sorted(ext)
 
 
-def from_gltf_material(material: dict) -> GltfPBR:
-    """The :class:`GltfPBR` of a glTF 2.0 ``materials[]`` object: its factors with the
-    specification's defaults, and the five extensions of this module where present (textures
-    and other extensions are not read)."""
+def gltf_material_params(material: dict) -> dict:
+    """The :class:`~brdf_fit.models.gltf_pbr.GltfPBR` parameters (as arrays) of a glTF 2.0
+    ``materials[]`` object: its factors with the specification's defaults, and the five
+    extensions of this module where present (textures and other extensions are not read)."""
     pbr = material.get("pbrMetallicRoughness", {}) or {}
     ext = material.get("extensions", {}) or {}
 
     def get(block, key, default):
         return jnp.asarray((ext.get(block, {}) or {}).get(key, default), dtype=float)
 
-    return GltfPBR(
+    return dict(
         base_color=jnp.asarray(pbr.get("baseColorFactor", [1.0, 1.0, 1.0, 1.0])[:3], float),
         metallic=jnp.asarray(pbr.get("metallicFactor", 1.0), float),
         roughness=jnp.asarray(pbr.get("roughnessFactor", 1.0), float),

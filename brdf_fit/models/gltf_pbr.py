@@ -170,6 +170,12 @@ from brdf_fit.models.charlie_sheen import (
     charlie_sheen,
     sheen_albedo,
 )
+from brdf_fit.models.gltf_material import (
+    GLTF_COLOURS,
+    GLTF_DEFAULTS,
+    gltf_material_params,
+    to_gltf_material,
+)
 
 __all__ = [
     "CHARLIE_L_R0",
@@ -188,8 +194,10 @@ __all__ = [
     "SHEEN_TABLE_N_ROUGHNESS",
     "charlie_lambda",
     "charlie_sheen",
+    "from_gltf_material",
     "registry_entries",
     "sheen_albedo",
+    "to_gltf_material",
 ]
 
 #: ``fresnel_coat``'s ``f0 = ((1 - ior)/(1 + ior))^2`` at the clearcoat's fixed ``ior = 1.5``;
@@ -202,22 +210,6 @@ P_DEFENSIVE = 0.05
 #: it, never the pdf's exactness.
 SHEEN_ALBEDO_GUESS = 0.5
 
-#: The specification's defaults of every parameter (the extensions off); also the class's.
-GLTF_DEFAULTS = {
-    "base_color": (1.0, 1.0, 1.0),
-    "metallic": 1.0,
-    "roughness": 1.0,
-    "ior": 1.5,
-    "specular_factor": 1.0,
-    "specular_color": (1.0, 1.0, 1.0),
-    "anisotropy_strength": 0.0,
-    "anisotropy_rotation": 0.0,
-    "sheen_color": (0.0, 0.0, 0.0),
-    "sheen_roughness": 0.0,
-    "clearcoat": 0.0,
-    "clearcoat_roughness": 0.0,
-}
-GLTF_COLOURS = ("base_color", "specular_color", "sheen_color")
 
 _SPEC = "KhronosGroup/glTF specification/2.0/Specification.adoc, Appendix B"
 _EXT = "KhronosGroup/glTF extensions/2.0/Khronos/{}/README.md"
@@ -469,6 +461,13 @@ class GltfPBR(AbstractBRDF):
             + self.clearcoat
 
 
+def from_gltf_material(material: dict) -> GltfPBR:
+    """The :class:`GltfPBR` of a glTF 2.0 ``materials[]`` object
+    (:func:`~brdf_fit.models.gltf_material.gltf_material_params`: its factors with the
+    specification's defaults and the five extensions of this module)."""
+    return GltfPBR(**gltf_material_params(material))
+
+
 # ----------------------------------------------------------------------------- registry
 
 #: Registry defaults: a representative dielectric with each entry's extension switched on (the
@@ -579,6 +578,4 @@ _COUPLED = ("the dielectric mix weights the diffuse by 1 - max3(F) and the sheen
 def _native_export(params: dict) -> tuple[dict, list[str]]:
     """``Entry.native_export`` of the glTF entries:
     :func:`~brdf_fit.models.gltf_material.to_gltf_material` (the exporter names the material)."""
-    from brdf_fit.models.gltf_material import to_gltf_material  # it imports this module
-
     return to_gltf_material(params, "")

@@ -21,7 +21,6 @@ from _helpers import EXTREME_UNIFORMS, dir_from_cos, random_dirs, seed_of
 
 from brdf_fit.convert.gltf import _appendix_b, _material_arrays
 from brdf_fit.core.table import load_table
-from brdf_fit.models import gltf_material as GM
 from brdf_fit.models import gltf_pbr as G
 from brdf_fit.tables.sheen import albedo
 from brdf_fit.verify.chi2 import chi2_test
@@ -347,7 +346,7 @@ def test_matches_the_exporters_appendix_b_evaluator():
              "roughness": float(rng.uniform(0.0, 1.0) if k else 0.0),
              "ior": float(rng.uniform(1.0, 2.5)), "specular_factor": float(rng.uniform()),
              "specular_color": tuple(rng.uniform(0, 3, 3))}
-        mat, _ = GM.to_gltf_material(p, f"m{k}")
+        mat, _ = G.to_gltf_material(p, f"m{k}")
         want = np.asarray(APPENDIX_B(*_material_arrays(mat), WI_J, WO_J))
         got = np.asarray(EVAL(model_of(p), WI_J, WO_J))
         scale = np.maximum(np.abs(want).max(-1, keepdims=True), 1e-300)
@@ -629,18 +628,18 @@ EXPECTED_EXTENSIONS = {
 @pytest.mark.parametrize("case", list(ROUND_TRIP))
 def test_gltf_material_round_trip_is_lossless(case):
     p = ROUND_TRIP[case]
-    mat, used = GM.to_gltf_material(p, case)
+    mat, used = G.to_gltf_material(p, case)
     assert used == EXPECTED_EXTENSIONS[case]
     assert sorted(mat.get("extensions", {})) == used
     back = json.loads(json.dumps(mat))  # plain JSON
     assert back["name"] == case
-    a = EVAL(GM.from_gltf_material(back), WI_J, WO_J)
+    a = EVAL(G.from_gltf_material(back), WI_J, WO_J)
     b = EVAL(model_of(p), WI_J, WO_J)
     assert np.array_equal(np.asarray(a), np.asarray(b))
 
 
 def test_export_writes_only_non_default_values_and_refuses_invalid_ones():
-    mat, _ = GM.to_gltf_material({"metallic": 0.0, "specular_factor": 0.5,
+    mat, _ = G.to_gltf_material({"metallic": 0.0, "specular_factor": 0.5,
                                  "anisotropy_strength": 0.3, "sheen_color": (0.1, 0, 0),
                                  "clearcoat": 0.2}, "x")
     ext = mat["extensions"]
@@ -652,7 +651,7 @@ def test_export_writes_only_non_default_values_and_refuses_invalid_ones():
     for bad in ({"ior": 0.5}, {"roughness": 1.5}, {"base_color": (1, 2)}, {"alpha": 0.1},
                 {"specular_color": -1.0}):
         with pytest.raises(ValueError):
-            GM.to_gltf_material(bad, "bad")
+            G.to_gltf_material(bad, "bad")
     with pytest.raises(ValueError, match="ior"):
         G.GltfPBR(ior=0.7)
 
@@ -669,9 +668,9 @@ def test_registry_entries_build_one_structure_and_export():
         assert e.param_names[:3] == ("base_color", "metallic", "roughness")
         m = e.build()
         assert jax.tree_util.tree_structure(m) == jax.tree_util.tree_structure(model_of({}))
-        mat, _ = GM.to_gltf_material({k: np.asarray(v) for k, v in e.defaults().items()}, e.name)
+        mat, _ = G.to_gltf_material({k: np.asarray(v) for k, v in e.defaults().items()}, e.name)
         f = EVAL(m, WI_J, WO_J)
-        assert np.array_equal(f, EVAL(GM.from_gltf_material(mat), WI_J, WO_J)), e.name
+        assert np.array_equal(f, EVAL(G.from_gltf_material(mat), WI_J, WO_J)), e.name
         assert np.all(np.asarray(f) >= 0)
     assert "anisotropic" in entries["gltf-pbr-anisotropy"].tags
     assert entries["gltf-pbr-anisotropy"].build().is_anisotropic()
