@@ -16,7 +16,7 @@ views tiled; seconds per normaliser evaluation = call time / batch):
                           integer n <= 2048 only)
 ``arvo-2048``             the same with the library default ``max_n = 2048`` (the cost a model
                           with a fixed bound pays for every exponent)
-``quad-mirror-KxP``       :func:`brdf_fit.core.quadrature.mirror_lobe_rule` with ``K``
+``quad-mirror-KxP``       :func:`brdf_fit.core.mirror_rule.mirror_lobe_rule` with ``K``
                           Gauss-Legendre nodes per panel and ``P`` per azimuthal ring (16 x 32
                           is the library default), the rule built inside the jitted function
 ``quad-gl-KxP``           plain Gauss-Legendre in cos(theta_i) x trapezoid in phi (``K x P``),
@@ -54,6 +54,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_eval import machine_info, time_interleaved  # noqa: E402
 
 from brdf_fit.core import quadrature as q  # noqa: E402
+from brdf_fit.core.mirror_rule import mirror_lobe_rule  # noqa: E402
 from brdf_fit.core.phong_normaliser import normaliser  # noqa: E402
 
 EXPONENTS = (1.0, 10.0, 100.0, 1000.0, 1e4, 1e5, 1e6)
@@ -122,7 +123,7 @@ def make_methods(n: float):
     for k, p in MIRROR:
         def quad(c, e, k=k, p=p):
             wo = _views(c)
-            rule = jax.vmap(lambda w, ee: q.mirror_lobe_rule(w, ee, n_u=k, n_phi=p))(wo, e)
+            rule = jax.vmap(lambda w, ee: mirror_lobe_rule(w, ee, n_u=k, n_phi=p))(wo, e)
             return jax.vmap(_lobe_integrand)(rule.directions, rule.weights, wo, e)
         methods[f"quad-mirror-{k}x{p}"] = (jax.jit(quad), np.float64)
     for k, p in GL:

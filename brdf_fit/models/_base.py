@@ -76,7 +76,7 @@ class QuadratureLobe(NamedTuple):
     quadrature (:func:`brdf_fit.verify.albedo.lobe_rule`) and the chi-square grid can follow it.
 
     ``kind``: ``"mirror"``: a power-cosine lobe about the mirror direction, ``value`` its exponent
-    (:func:`brdf_fit.core.quadrature.mirror_lobe_rule`); ``"half"``: a half-vector lobe of Beckmann
+    (:func:`brdf_fit.core.mirror_rule.mirror_lobe_rule`); ``"half"``: a half-vector lobe of Beckmann
     width ``value``, or ``(width_x, width_y)`` when anisotropic
     (:func:`brdf_fit.core.quadrature.halfvector_rule`); ``"mu"``: a lobe that depends on ``wi``
     only through ``mu_i = cos(theta_i)``, ``value = (mu, w)`` its own rule in ``mu`` (nodes in

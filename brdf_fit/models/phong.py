@@ -336,7 +336,7 @@ class BlinnPhong(AbstractBRDF):
 
 # Measured with brdf_fit.checks.run_checks on the default parameters (float64); the slow test
 # tests/test_phong.py::test_registry_entries_run_checks asserts that each still fails. The checks
-# integrate these lobes with brdf_fit.quadrature.mirror_lobe_rule (Phong lobes) and the
+# integrate these lobes with brdf_fit.core.mirror_rule.mirror_lobe_rule (Phong lobes) and the
 # half-vector rule at the equivalent Beckmann width (Blinn-Phong), via quadrature_lobe().
 _PHONG_ORIGINAL_FAILURES: dict[str, str] = {
     "reciprocity": (

@@ -18,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from brdf_fit.core.microfacet import Beckmann, BlinnPhongNDF
+from brdf_fit.core.mirror_rule import mirror_lobe_rule
 from brdf_fit.core.quadrature import (
     HALFVECTOR_N_PHI,
     HALFVECTOR_N_THETA,
@@ -26,7 +27,6 @@ from brdf_fit.core.quadrature import (
     cosine_rule,
     gauss_legendre_hemisphere,
     halfvector_rule,
-    mirror_lobe_rule,
 )
 from brdf_fit.core.validate import ParameterError, PrecisionWarning
 from brdf_fit.models import Lambert, MicrofacetBRDF

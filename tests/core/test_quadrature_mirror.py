@@ -1,4 +1,4 @@
-"""brdf_fit.core.quadrature.mirror_lobe_rule: exact identities, the exactly normalised Phong lobe,
+"""brdf_fit.core.mirror_rule.mirror_lobe_rule: exact identities, the exactly normalised Phong lobe,
 and the batched and traced constructions."""
 
 import math
@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from brdf_fit.core.quadrature import mirror_lobe_rule
+from brdf_fit.core.mirror_rule import mirror_lobe_rule
 from brdf_fit.models.phong_normalized import EnergyNormalizedPhong
 from brdf_fit.verify.albedo import lobe_rule
 
