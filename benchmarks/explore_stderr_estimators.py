@@ -24,6 +24,11 @@ leverage; intervals ``estimate +- q se``):
                h_i))``) with the multiplicative one.
 ``quasi``      the working model's own variance, ``s^2 sum a_i^2 g_i^2`` with the dispersion
                ``s^2 = sum (r_i / g_i)^2 / (m - p)`` (quasi-likelihood), ``q = 1.96``.
+``mb_mult``    the multiplicative working model's own covariance ``s^2 sum a_i^2 g_i^2`` with
+               the dispersion from the raw residuals, ``s^2 = |r|^2 / tr(M0)``, ``M0 = (I - H)
+               Omega (I - H)`` (the residuals' linearised expectation ``E[r r^T] = s^2 M0``), not
+               from Pearson residuals ``r_i / g_i`` as ``quasi``; ``q = 1.96``; ``mb_mult_t``
+               the same with the t quantile of ``tr(M0)^2 / tr(M0^2)`` degrees of freedom.
 ``wild_t``     a linearised wild bootstrap of the HC3 t statistic (Rademacher weights on
                ``r_i / (1 - h_i)``, 499 resamples; Davidson & Flachaire 2008), ``q`` its 95%
                quantile of ``|t*|``.
@@ -44,7 +49,7 @@ sys.path.insert(0, HERE)
 import bench_coverage as bc  # noqa: E402
 
 ESTIMATORS = ("hc3", "hc2_t_mult", "hc2_t_homo", "hc2_bm_mult", "hc2_bm_homo", "hc3_bm_mult",
-              "quasi", "wild_t")
+              "quasi", "wild_t", "mb_mult", "mb_mult_t")
 WILD_RESAMPLES = 499
 
 
@@ -81,6 +86,13 @@ def intervals(J, r, g, err, rng):
     out["hc3_bm_mult"] = np.abs(err) / (stats.t.ppf(0.975, tr**2 / fro) * se3)
     s2 = np.sum((r / np.maximum(g, 1e-300)) ** 2) / (m - p)
     out["quasi"] = np.abs(err) / (1.959964 * np.sqrt(s2 * (infl**2 * (g**2)[:, None]).sum(0)))
+    # the working model's covariance with its dispersion from the raw residuals' exact
+    # expectation, E[r r^T] = s^2 (I - H) Omega (I - H) (linearised): s^2 = |r|^2 / tr(M0)
+    s2_mb = np.sum(r**2) / np.trace(M0)
+    se_mb = np.sqrt(s2_mb * (infl**2 * (g**2)[:, None]).sum(0))
+    out["mb_mult"] = np.abs(err) / (1.959964 * se_mb)
+    out["mb_mult_t"] = np.abs(err) / (stats.t.ppf(0.975, np.trace(M0) ** 2 / np.sum(M0**2))
+                                      * se_mb)
     e = rng.choice([-1.0, 1.0], size=(WILD_RESAMPLES, m)) * (r / one_h)
     res_b = e - (e @ infl) @ J.T  # (I - H) e
     se_b = np.sqrt((res_b**2 / one_h[None] ** 2) @ infl**2)
