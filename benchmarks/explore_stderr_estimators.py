@@ -29,6 +29,9 @@ leverage; intervals ``estimate +- q se``):
                Omega (I - H)`` (the residuals' linearised expectation ``E[r r^T] = s^2 M0``), not
                from Pearson residuals ``r_i / g_i`` as ``quasi``; ``q = 1.96``; ``mb_mult_t``
                the same with the t quantile of ``tr(M0)^2 / tr(M0^2)`` degrees of freedom.
+``max_hc3_mb`` the larger of the ``hc3`` and ``mb_mult`` standard errors (never narrower than
+               HC3, so no less honest than it whatever the noise); ``avg_hc3_mb`` the root of
+               their mean variance.
 ``wild_t``     a linearised wild bootstrap of the HC3 t statistic (Rademacher weights on
                ``r_i / (1 - h_i)``, 499 resamples; Davidson & Flachaire 2008), ``q`` its 95%
                quantile of ``|t*|``.
@@ -49,7 +52,7 @@ sys.path.insert(0, HERE)
 import bench_coverage as bc  # noqa: E402
 
 ESTIMATORS = ("hc3", "hc2_t_mult", "hc2_t_homo", "hc2_bm_mult", "hc2_bm_homo", "hc3_bm_mult",
-              "quasi", "wild_t", "mb_mult", "mb_mult_t")
+              "quasi", "wild_t", "mb_mult", "mb_mult_t", "max_hc3_mb", "avg_hc3_mb")
 WILD_RESAMPLES = 499
 
 
@@ -93,6 +96,8 @@ def intervals(J, r, g, err, rng):
     out["mb_mult"] = np.abs(err) / (1.959964 * se_mb)
     out["mb_mult_t"] = np.abs(err) / (stats.t.ppf(0.975, np.trace(M0) ** 2 / np.sum(M0**2))
                                       * se_mb)
+    out["max_hc3_mb"] = np.abs(err) / (1.959964 * np.maximum(se3, se_mb))
+    out["avg_hc3_mb"] = np.abs(err) / (1.959964 * np.sqrt(0.5 * (se3**2 + se_mb**2)))
     e = rng.choice([-1.0, 1.0], size=(WILD_RESAMPLES, m)) * (r / one_h)
     res_b = e - (e @ infl) @ J.T  # (I - H) e
     se_b = np.sqrt((res_b**2 / one_h[None] ** 2) @ infl**2)
