@@ -34,12 +34,13 @@ demo: $(STAMP)          ## the main job on its embedded default
 
 # the suite runs in parallel, one process per core (pytest-xdist; whole files per worker, so a
 # file's tests share their compilations; 81% of the summed test time is tracing, lowering and
-# compiling: benchmarks/results/compiles_tests.md). The default set: 6:00-7:08 for 1975-1976
-# tests on 2 Intel Xeon cores (AVX-512) from fresh clones of e227241, 43ea94b and 792fb36
-# (2026-12-07, with make blender), 7:48 for 1913 on 2 AMD EPYC cores (898d200); the slow set
-# (`test-slow`, which CI runs too): 20:32 and 32:23 for 1878-1879 on the Xeon (fresh clones
-# of e227241 and 792fb36: the same machine type on one day), 28:30 for 1698 on the EPYC (CI in all, blender +
-# setup + test + docs + test-slow: 29-43 minutes on the Xeon, ~40 on the EPYC).
+# compiling: benchmarks/results/compiles_tests.md). The default set: 6:00-9:49 for 1975-1976
+# tests on 2 Intel Xeon cores (AVX-512) from fresh clones of e227241, 43ea94b, 792fb36
+# (2026-12-07) and bfc0f6f (2026-12-08, with make blender), 7:48 for 1913 on 2 AMD EPYC cores
+# (898d200); the slow set (`test-slow`, which CI runs too): 20:32-38:10 for 1878-1879 on the
+# Xeon (fresh clones of e227241, 792fb36 and bfc0f6f: the same machine type varies that much),
+# 28:30 for 1698 on the EPYC (CI in all, blender + setup + test + docs + test-slow: 29-57
+# minutes on the Xeon, ~40 on the EPYC).
 # On an AVX2 machine, or to check a bound for one: XLA_FLAGS=--xla_cpu_max_isa=AVX2 make test
 XDIST  := -n auto --maxprocesses=4 --dist loadfile
 
