@@ -42,7 +42,8 @@ CHARLIE_L_R1 = (21.5473, 3.82987, 0.19823, -1.97760, -4.32054)
 #: Sheen roughness whose square is ``ALPHA_MIN``: the sheen ``r`` is ``max(sr^2, ALPHA_MIN)``, so
 #: everything below it evaluates as it (and the albedo table starts there).
 SHEEN_ROUGHNESS_MIN = math.sqrt(ALPHA_MIN)
-#: The sheen albedo table's smallest ``mu`` (module docstring, epsilons).
+#: The sheen albedo table's smallest ``mu`` (:mod:`brdf_fit.models.gltf_pbr`'s docstring,
+#: epsilons).
 SHEEN_TABLE_MU_MIN = 1e-6
 #: Endpoint nodes of the sheen albedo table: ``log10(sheenRoughness)`` in ``[-2, 0]`` and
 #: ``log10(mu)`` in ``[-6, 0]`` (64 and 32 nodes per decade). Measured cubic-lookup errors at
@@ -60,7 +61,8 @@ SHEEN_TABLE_ERROR = 3e-5
 
 
 def charlie_lambda(mu, r):
-    """Estevez & Kulla's fitted ``Lambda(mu)`` at sheen roughness ``r`` (module docstring):
+    """Estevez & Kulla's fitted ``Lambda(mu)`` at sheen roughness ``r``
+    (:mod:`brdf_fit.models.gltf_pbr`'s docstring):
     ``exp(l(mu))`` below ``mu = 0.5``, ``exp(2 l(0.5) - l(1 - mu))`` above. ``mu`` in [0, 1]."""
     t = (1.0 - r) * (1.0 - r)
     a, b, c, d, e = (p1 + (p0 - p1) * t for p0, p1 in zip(CHARLIE_L_R0, CHARLIE_L_R1,
@@ -86,7 +88,8 @@ def charlie_lobe(hx, hy, iz, oz, sheen_roughness):
 
 
 def charlie_sheen(wi, wo, sheen_roughness):
-    """The sheen lobe ``f_sheen / sheenColor`` of KHR_materials_sheen (module docstring) at
+    """The sheen lobe ``f_sheen / sheenColor`` of KHR_materials_sheen
+    (:mod:`brdf_fit.models.gltf_pbr`'s docstring) at
     ``(..., 3)`` directions: ``D_s V_s``, 0 at or below the horizon. What the packaged albedo
     table integrates (:mod:`brdf_fit.tables.sheen`)."""
     valid, (_, _, iz), (_, _, oz), (hx, hy, _), _ = half_geometry(wi, wo)

@@ -56,10 +56,11 @@ def _check_range(name, v, lo=None, hi=None):
 
 
 def to_gltf_material(params: dict, name: str) -> tuple[dict, list[str]]:
-    """The glTF 2.0 ``materials[]`` object of :class:`GltfPBR` parameters (registry names; the
-    missing ones take the specification's defaults, :data:`GLTF_DEFAULTS`) and the sorted
-    extensions it uses. Lossless: :func:`~brdf_fit.models.gltf_pbr.from_gltf_material` of it
-    evaluates as ``GltfPBR(**params)`` does.
+    """The glTF 2.0 ``materials[]`` object of :class:`~brdf_fit.models.gltf_pbr.GltfPBR`
+    parameters (registry names; the missing ones take the specification's defaults,
+    :data:`GLTF_DEFAULTS`) and the sorted extensions it uses. Lossless:
+    :func:`~brdf_fit.models.gltf_pbr.from_gltf_material` of it evaluates as ``GltfPBR(**params)``
+    does.
 
     ``pbrMetallicRoughness`` is always written. An extension is written only where it changes
     the BRDF, and in it only the values that differ from its defaults: ``KHR_materials_ior`` and

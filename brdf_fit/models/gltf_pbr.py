@@ -7,8 +7,8 @@ extensions ``KHR_materials_ior``, ``KHR_materials_specular``, ``KHR_materials_an
 ``extensions/2.0/Khronos/<name>/README.md``), parametrised as a glTF material's factors, so that
 a model fitted here is written as a glTF material with no loss
 (:func:`brdf_fit.models.gltf_material.to_gltf_material`; ``from_gltf_material`` reads one
-back). Textures, normal maps and the clearcoat normal are
-not modelled (the factors are the whole material).
+back). Textures, normal maps and the clearcoat normal are not modelled (the factors are the
+whole material).
 
 Notation: ``L = wi`` (toward the light), ``V = wo`` (toward the viewer), ``N = (0, 0, 1)``,
 ``H = normalize(L + V)``, ``mu_i = N.L``, ``mu_o = N.V``, ``d = V.H = L.H``,

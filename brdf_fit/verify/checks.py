@@ -464,7 +464,8 @@ def check_chi2(model, name="model", cosines=STAT_COS, n=100_000, seed=4, alpha=0
 
 
 # --------------------------------------------------------------------------- hard-case grid
-# the grid itself: brdf_fit.verify.hard_cases
+# (the grid itself: brdf_fit.verify.hard_cases)
+
 
 def check_finite(entry, name=None, dtypes=(jnp.float64, jnp.float32)) -> CheckResult:
     """Values and gradients on the hard-case grid, vmapped over the parameter grid."""

@@ -40,7 +40,7 @@ class Chi2Result:
         dof: degrees of freedom (bins - 1).
         p_value: the p-value of ``statistic``: the chi-square survival function (NaN if
             ``dof < 1``), or the Monte Carlo one when that was inconclusive (``mc_draws > 0``; see
-            the module docstring).
+            :mod:`brdf_fit.verify.chi2`'s docstring).
         threshold: the Sidak-corrected per-test significance level.
         passed: ``p_value > threshold`` and the secondary criteria (see ``reasons``).
         n_samples: number of samples drawn.

@@ -172,9 +172,10 @@ def pooled_bin_expectations(expected: np.ndarray, min_expected: float = 5.0) -> 
     return np.append(bins, exp[pooled].sum()) if pooled.any() else bins
 
 
-#: Monte Carlo p-values (see the module docstring): the window below the threshold where the
-#: chi-square p-value is replaced, the expected number of simulated statistics at least as large as
-#: the observed one when ``p`` equals the threshold, and the batch size of the draws.
+#: Monte Carlo p-values (:mod:`brdf_fit.verify.chi2`'s docstring, step 5): the window below the
+#: threshold where the chi-square p-value is replaced, the expected number of simulated
+#: statistics at least as large as the observed one when ``p`` equals the threshold, and the
+#: batch size of the draws.
 MC_WINDOW = 1e-3
 MC_EXCEEDANCES = 20
 _MC_BATCH = 16_384
