@@ -25,6 +25,7 @@ instead (error ``O(h^4)``; Kelemen's packaged albedo table uses it).
 from __future__ import annotations
 
 import hashlib
+import importlib.resources
 import itertools
 import json
 import os
@@ -35,7 +36,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["Axis", "Table", "load_table", "parse_descriptor", "values_sha256"]
+__all__ = ["Axis", "Table", "load_table", "load_packaged_table", "parse_descriptor",
+           "values_sha256"]
 
 #: the descriptor tag and the newest version :func:`load_table` reads (the ``.npz`` layout of
 #: ``brdf_fit.tables.export``, which writes it)
@@ -231,3 +233,12 @@ def load_table(path: str | os.PathLike, descriptor: str | None = None) -> Table:
     if values.shape != shape:
         raise ValueError(f"{where}: the data have shape {values.shape}, the metadata says {shape}")
     return Table(values, axes, d["channels"], d.get("meta") or {})
+
+
+def load_packaged_table(name: str) -> Table:
+    """The table ``name`` the package ships in ``brdf_fit/resources/tables`` (package data, read
+    through :mod:`importlib.resources`), by :func:`load_table`. Not cached: each model keeps the
+    tables it uses (in the dtypes it evaluates in)."""
+    ref = importlib.resources.files("brdf_fit") / "resources" / "tables" / name
+    with importlib.resources.as_file(ref) as p:
+        return load_table(p)

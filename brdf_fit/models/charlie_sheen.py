@@ -9,14 +9,13 @@ the table.
 from __future__ import annotations
 
 import functools
-import importlib.resources
 import math
 
 import jax.numpy as jnp
 import numpy as np
 
 from brdf_fit.core.numerics import ALPHA_MIN, INV_TWO_PI, safe_div, safe_pow
-from brdf_fit.core.table import Table, load_table
+from brdf_fit.core.table import Table, load_packaged_table
 from brdf_fit.models._lobes import half_geometry
 
 __all__ = [
@@ -98,9 +97,7 @@ def charlie_sheen(wi, wo, sheen_roughness):
 
 @functools.lru_cache(maxsize=1)
 def _packaged_table() -> Table:
-    path = importlib.resources.files("brdf_fit") / "resources" / "tables" / SHEEN_TABLE_FILE
-    with importlib.resources.as_file(path) as p:
-        return load_table(p)
+    return load_packaged_table(SHEEN_TABLE_FILE)
 
 
 @functools.lru_cache(maxsize=4)

@@ -6,7 +6,7 @@ J. T. Kajiya, "Anisotropic reflection models", SIGGRAPH 85, Computer Graphics 19
 it up at render time. The tables are computed by :mod:`brdf_fit.tables.kajiya` (layer 3; its
 docstring derives the formula and states every numerical choice) by FFT over seeded realisations
 of a Gaussian random height field, and shipped as ``brdf_fit/resources/tables/kajiya_<preset>.npz``
-(+ ``.json``), read here with :func:`brdf_fit.core.table.load_table`.
+(+ ``.json``), read here with :func:`brdf_fit.core.table.load_packaged_table`.
 
 The BRDF (``H = wi + wo``, ``h = H/|H|``, ``d = wi.h = |H|/2``)::
 
@@ -52,7 +52,6 @@ ns in the same run (12x / 14x Lambert).
 from __future__ import annotations
 
 import functools
-import importlib.resources
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -62,7 +61,7 @@ from brdf_fit.core.fresnel import schlick
 from brdf_fit.core.microfacet import Beckmann, SmithHeightCorrelated
 from brdf_fit.core.numerics import safe_div
 from brdf_fit.core.params import Channels, Entry, Param, bounded
-from brdf_fit.core.table import Table, load_table
+from brdf_fit.core.table import Table, load_packaged_table
 from brdf_fit.core.validate import ParameterError, check_param
 from brdf_fit.models._base import AbstractBRDF, QuadratureLobe, expand_channels
 from brdf_fit.models._fallback import cosine_beckmann_pdf, cosine_beckmann_sample
@@ -90,9 +89,7 @@ def _table64(preset: str) -> Table:
     if preset not in PRESET_NAMES:
         raise ParameterError(f"Kajiya: unknown preset {preset!r}; presets: "
                              f"{', '.join(PRESET_NAMES)}")
-    ref = importlib.resources.files("brdf_fit") / "resources" / "tables" / table_file(preset)
-    with importlib.resources.as_file(ref) as p:
-        return load_table(p)
+    return load_packaged_table(table_file(preset))
 
 
 @functools.cache

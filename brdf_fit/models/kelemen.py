@@ -59,7 +59,6 @@ specular lobe with probability ``p_s = w_s/(w_s + w_m)``: Beckmann NDF sampling 
 from __future__ import annotations
 
 import functools
-import importlib.resources
 
 import jax.numpy as jnp
 import numpy as np
@@ -70,7 +69,7 @@ from brdf_fit.core.microfacet import Beckmann, reflect_about
 from brdf_fit.core.numerics import ALPHA_MIN, INV_PI, pow5, safe_div, safe_norm3, safe_sqrt
 from brdf_fit.core.params import Channels, Entry, Param, Scalar, bounded
 from brdf_fit.core.quadrature import halfvector_rule
-from brdf_fit.core.table import Table, load_table
+from brdf_fit.core.table import Table, load_packaged_table
 from brdf_fit.core.validate import check_param
 from brdf_fit.core.warp import sample_cosine_hemisphere
 from brdf_fit.models._base import AbstractBRDF, QuadratureLobe, expand_channels
@@ -149,9 +148,7 @@ def albedo_nodes(alpha):
 
 @functools.lru_cache(maxsize=1)
 def _packaged_table() -> Table:
-    path = importlib.resources.files("brdf_fit") / "resources" / "tables" / ALBEDO_TABLE_FILE
-    with importlib.resources.as_file(path) as p:
-        return load_table(p)
+    return load_packaged_table(ALBEDO_TABLE_FILE)
 
 
 @functools.lru_cache(maxsize=4)

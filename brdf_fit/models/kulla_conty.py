@@ -24,8 +24,8 @@ second lobe of a :class:`~brdf_fit.models.Mixture` with the GGX lobe
 **Tables.** ``E`` and ``E_avg`` are computed once by ``brdf_fit.tables.energy.ms_tables`` (layer
 3; the split-sum quadrature of :mod:`brdf_fit.tables.dfg`, float64) and shipped as package data
 (``brdf_fit/resources/tables/ggx_ms_E.npz`` and ``ggx_ms_E_avg.npz``), read here with
-:func:`brdf_fit.core.table.load_table`; ``tests/tables/test_ms_resources.py`` holds the files
-equal to a regeneration. Both lookups are linear (differentiable in ``alpha``):
+:func:`brdf_fit.core.table.load_packaged_table`; ``tests/tables/test_ms_resources.py`` holds the
+files equal to a regeneration. Both lookups are linear (differentiable in ``alpha``):
 
 * ``E`` on the 512 x 256 grid of ``log10_alpha`` in ``[-4, 0]`` and ``sqrt_warped_mu =
   sqrt(log(1 + mu/alpha) / log(1 + 1/alpha))`` in ``[0, 1]`` (endpoint nodes; see
@@ -59,7 +59,6 @@ References
 from __future__ import annotations
 
 import functools
-import importlib.resources
 
 import jax
 import jax.numpy as jnp
@@ -68,7 +67,7 @@ import numpy as np
 from brdf_fit.core.fresnel import AbstractFresnel, SchlickFresnel
 from brdf_fit.core.numerics import ALPHA_MIN, INV_PI, safe_div, safe_sqrt
 from brdf_fit.core.params import Scalar, bounded
-from brdf_fit.core.table import Table, load_table
+from brdf_fit.core.table import Table, load_packaged_table
 from brdf_fit.core.validate import check_param, check_scalar
 from brdf_fit.models._base import AbstractBRDF, QuadratureLobe, expand_channels
 from brdf_fit.models._lobes import cosine_pdf, max_over_channels, sample_cosine, upper
@@ -129,10 +128,6 @@ def dmu_dwarped(v, alpha):
 # ----------------------------------------------------------------------------- tables
 
 
-def _resource(name: str):
-    return importlib.resources.files("brdf_fit") / "resources" / "tables" / name
-
-
 def loss_weight(mu, alpha):
     """``(1 + mu / alpha)^2``: the loss ``1 - E`` times it is what the lobe interpolates (see
     :func:`loss_table`). Arithmetic only (NumPy or ``jax.numpy``)."""
@@ -171,10 +166,8 @@ def interpolate_loss(q_table: Table, mu, alpha):
 @functools.cache
 def _loss_tables() -> tuple[Table, Table]:
     """``(q, 1 - E_avg)`` as float64 NumPy tables (loaded once)."""
-    with importlib.resources.as_file(_resource(E_TABLE_FILE)) as p:
-        e = load_table(p)
-    with importlib.resources.as_file(_resource(E_AVG_TABLE_FILE)) as p:
-        ea = load_table(p)
+    e = load_packaged_table(E_TABLE_FILE)
+    ea = load_packaged_table(E_AVG_TABLE_FILE)
     loss_avg = 1.0 - np.asarray(ea.channel("E_avg"), dtype=np.float64)
     return loss_table(e), Table(loss_avg[..., None], ea.axes, ("loss_avg",), ea.meta)
 

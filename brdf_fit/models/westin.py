@@ -8,7 +8,7 @@ onto a smooth representation that can be evaluated everywhere, reciprocal by sym
 The tables are computed by :mod:`brdf_fit.tables.westin` (layer 3; its docstring states the
 geometry, the tracer, the basis and every approximation) and shipped as
 ``brdf_fit/resources/tables/westin_<preset>.npz`` (+ ``.json``), read here with
-:func:`brdf_fit.core.table.load_table`.
+:func:`brdf_fit.core.table.load_packaged_table`.
 
 The BRDF::
 
@@ -48,7 +48,6 @@ CPU): 130 ns per pair, 32x Lambert in the same run (``benchmarks/bench_catalogue
 from __future__ import annotations
 
 import functools
-import importlib.resources
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -56,7 +55,7 @@ import numpy as np
 
 from brdf_fit.core.numerics import safe_hypot
 from brdf_fit.core.params import Channels, Entry, Param, bounded
-from brdf_fit.core.table import Table, load_table
+from brdf_fit.core.table import Table, load_packaged_table
 from brdf_fit.core.validate import ParameterError, check_param
 from brdf_fit.models._base import AbstractBRDF, expand_channels
 from brdf_fit.models._fallback import cosine_beckmann_pdf, cosine_beckmann_sample
@@ -86,9 +85,7 @@ def _table64(preset: str) -> Table:
     if preset not in PRESET_NAMES:
         raise ParameterError(f"Westin: unknown preset {preset!r}; presets: "
                              f"{', '.join(PRESET_NAMES)}")
-    ref = importlib.resources.files("brdf_fit") / "resources" / "tables" / table_file(preset)
-    with importlib.resources.as_file(ref) as p:
-        return load_table(p)
+    return load_packaged_table(table_file(preset))
 
 
 @functools.cache
