@@ -82,20 +82,20 @@ def intervals(J, r, g, err, rng):
         tr = np.einsum("ip,ii,ip->p", d, M0, d)
         fro = np.einsum("ip,ij,jp->p", d**2, M0**2, d**2)
         out[tag] = np.abs(err) / (stats.t.ppf(0.975, tr**2 / fro) * se2)
-    M0 = (I_H * (g**2)[None, :]) @ I_H
+    M_mult = (I_H * (g**2)[None, :]) @ I_H  # (I - H) Omega (I - H), multiplicative model
     d = infl / one_h[:, None]
-    tr = np.einsum("ip,ii,ip->p", d, M0, d)
-    fro = np.einsum("ip,ij,jp->p", d**2, M0**2, d**2)
+    tr = np.einsum("ip,ii,ip->p", d, M_mult, d)
+    fro = np.einsum("ip,ij,jp->p", d**2, M_mult**2, d**2)
     out["hc3_bm_mult"] = np.abs(err) / (stats.t.ppf(0.975, tr**2 / fro) * se3)
     s2 = np.sum((r / np.maximum(g, 1e-300)) ** 2) / (m - p)
     out["quasi"] = np.abs(err) / (1.959964 * np.sqrt(s2 * (infl**2 * (g**2)[:, None]).sum(0)))
-    # the working model's covariance with its dispersion from the raw residuals' exact
-    # expectation, E[r r^T] = s^2 (I - H) Omega (I - H) (linearised): s^2 = |r|^2 / tr(M0)
-    s2_mb = np.sum(r**2) / np.trace(M0)
+    # the working model's covariance with its dispersion from the raw residuals' linearised
+    # expectation, E[r r^T] = s^2 (I - H) Omega (I - H): s^2 = |r|^2 / tr(M_mult)
+    s2_mb = np.sum(r**2) / np.trace(M_mult)
     se_mb = np.sqrt(s2_mb * (infl**2 * (g**2)[:, None]).sum(0))
     out["mb_mult"] = np.abs(err) / (1.959964 * se_mb)
-    out["mb_mult_t"] = np.abs(err) / (stats.t.ppf(0.975, np.trace(M0) ** 2 / np.sum(M0**2))
-                                      * se_mb)
+    dof_mb = np.trace(M_mult) ** 2 / np.sum(M_mult**2)
+    out["mb_mult_t"] = np.abs(err) / (stats.t.ppf(0.975, dof_mb) * se_mb)
     out["max_hc3_mb"] = np.abs(err) / (1.959964 * np.maximum(se3, se_mb))
     out["avg_hc3_mb"] = np.abs(err) / (1.959964 * np.sqrt(0.5 * (se3**2 + se_mb**2)))
     e = rng.choice([-1.0, 1.0], size=(WILD_RESAMPLES, m)) * (r / one_h)
